@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Idempotent set-up: a virtual environment in .venv with the package and its test tools.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY="${PYTHON:-python3}"
+if [ ! -x .venv/bin/python ]; then
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  .venv/bin/python -m pip install --quiet --upgrade pip
+  .venv/bin/python -m pip install --quiet -e ".[test,plot]"
+  touch "$stamp"
+fi
+# System services used by the end-to-end tests (Prometheus); optional outside CI.
+if [ "${CI:-}" = "true" ] && ! command -v prometheus >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq prometheus >/dev/null) \
+    || echo "setup: prometheus could not be installed; its tests will skip" >&2
+fi

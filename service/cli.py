@@ -1,0 +1,48 @@
+"""The ``simpletrack`` command: one entry point, one module per subcommand.
+
+Each command module exposes ``register(subparsers)`` which adds its parser and sets
+``func(args) -> int`` as the default. Modules are imported only when listed here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+COMMAND_MODULES: tuple[str, ...] = (
+    # one module per subcommand
+    "clients.commands.track",
+)
+
+
+class UserError(Exception):
+    """A mistake in the command's arguments or inputs: printed as one line, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="simpletrack",
+        description="SimpleTrack 3D multi-object tracking as a Zenoh streaming service.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except UserError as exc:
+        print(f"simpletrack {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
