@@ -29,6 +29,7 @@ import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from service.core.boxes import Boxes
+from service.core.geometry import iou_3d
 
 F64 = npt.NDArray[np.float64]
 
@@ -159,9 +160,7 @@ class MotScorer:
             )
             gate = same & (d <= self.max_distance)
             return np.where(gate, d, _INVALID), d
-        from clients.box_overlap import iou_3d
-
-        iou = iou_3d(truth, tracks)
+        iou = iou_3d(truth.params, tracks.params)
         gate = same & (iou >= self.min_iou)
         return np.where(gate, 1.0 - iou, _INVALID), iou
 

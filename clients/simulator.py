@@ -103,10 +103,13 @@ class DetectorModel(_Frozen):
     yaw_noise: NonNegative = Field(0.06, description="yaw std (rad)")
     size_noise: Fraction = Field(0.05, description="relative size std")
     occlusion_miss: Fraction = Field(
-        0.85, description="a fully hidden object's detection chance is cut by this fraction"
+        0.6, description="a fully hidden object's detection chance is cut by this fraction"
+    )
+    occlusion_low_score: Fraction = Field(
+        0.6, description="a fully hidden object, when detected, gets a low score this often"
     )
     range_miss: Fraction = Field(
-        0.3, description="an object at max range has its detection chance cut by this fraction"
+        0.15, description="an object at max range has its detection chance cut by this fraction"
     )
     low_score_prob: Fraction = Field(
         0.08, description="chance a clear detection gets a low score (stage-2 material)"
@@ -404,7 +407,7 @@ class _Detector:
         params[:, 3] = wrap_angle(params[:, 3] + m.yaw_noise * rng.standard_normal(k))
         params[:, 4:7] *= np.clip(1.0 + m.size_noise * rng.standard_normal((k, 3)), 0.5, 1.5)
         # Partly hidden objects more often come out with a low score.
-        low = rng.random(k) < m.low_score_prob + 0.5 * occ
+        low = rng.random(k) < m.low_score_prob + m.occlusion_low_score * occ
         score = np.where(low, rng.uniform(*m.score_low, size=k), rng.uniform(*m.score_high, size=k))
         boxes = [Boxes(params=params, score=score, cls=det.cls.copy())]
         boxes.append(self._duplicates(boxes[0]))

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from service.core.boxes import wrap_angle
+from clients.kitti_io import camera_to_tracker
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -78,12 +78,6 @@ NUSCENES_DET_TYPES = {
     9: "barrier",
     10: "traffic_cone",
 }
-
-
-def camera_to_zup(h: F64, w: F64, l: F64, x: F64, y: F64, z: F64, ry: F64) -> F64:  # noqa: E741
-    """KITTI camera boxes (bottom centre, y down) → z-up boxes: X = z, Y = -x, Z = -y + h/2,
-    yaw = -rot_y - pi/2 (the project's documented conversion)."""
-    return np.stack([z, -x, -y + h / 2, wrap_angle(-ry - np.pi / 2), l, w, h], axis=1)
 
 
 def _build(rows: dict[int, list[tuple[int, list[float], str, float]]]) -> Sequence:
@@ -158,8 +152,8 @@ def read_kitti(path: Path) -> Sequence:
             if parts[2] == "DontCare":
                 continue
             try:
-                v = [float(p) for p in parts[10:17]]
-                box = camera_to_zup(*(np.array([x]) for x in v))[0].tolist()
+                cam = np.array([float(p) for p in parts[10:17]])
+                box = camera_to_tracker(cam)[0].tolist()
                 score = float(parts[17]) if len(parts) > 17 else float("nan")
                 rows[int(parts[0])].append((int(parts[1]), box, parts[2], score))
             except ValueError as exc:
@@ -179,7 +173,7 @@ def read_kitti_detections(path: Path, types: dict[int, str] | None = None) -> Se
         return {}
     if raw.shape[1] < 14:
         raise TrackFileError(f"{path}: {raw.shape[1]} columns, expected 15")
-    params = camera_to_zup(*raw[:, 7:14].T)
+    params = camera_to_tracker(raw[:, 7:14])
     frames = raw[:, 0].astype(np.int64)
     cls = np.array([names.get(int(t), str(int(t))) for t in raw[:, 1]], dtype=np.str_)
     out: Sequence = {}

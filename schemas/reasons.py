@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from enum import IntEnum, StrEnum
+from typing import Final
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION: Final = 1
 
 
 class ErrorReason(StrEnum):
@@ -29,11 +30,12 @@ class ErrorReason(StrEnum):
     DUPLICATE_SEQ = "duplicate_seq"  # same seq as the last processed frame: ignored
     TOO_MANY_SENSORS = "too_many_sensors"
     # Load shedding: the frame was valid as far as anyone looked, but not processed.
-    DROPPED_QUEUE_FULL = "dropped_queue_full"
+    DROPPED_QUEUE_FULL = "dropped_queue_full"  # backpressure drop_oldest: the oldest goes
+    DROPPED_SHUTDOWN = "dropped_shutdown"  # arrived after intake stopped, or drain timed out
     INTERNAL_ERROR = "internal_error"  # a bug: reported rather than crashing the worker
 
 
-DROP_REASONS = frozenset({ErrorReason.DROPPED_QUEUE_FULL})
+DROP_REASONS = frozenset({ErrorReason.DROPPED_QUEUE_FULL, ErrorReason.DROPPED_SHUTDOWN})
 
 
 class WireTrackState(IntEnum):

@@ -14,6 +14,11 @@ from collections.abc import Sequence
 COMMAND_MODULES: tuple[str, ...] = (
     # one module per subcommand
     "clients.commands.track",
+    "clients.commands.eval",
+    "clients.commands.plot",
+    "clients.commands.replay",
+    "clients.commands.record",
+    "service.commands.serve",
 )
 
 
@@ -42,6 +47,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # output piped into head & co.: not an error of ours
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

@@ -70,7 +70,9 @@ def greedy(dist: F64, max_distance: float) -> Assignment:
             cols.append(c)
             if len(rows) == limit:
                 break
-    return _finish(np.array(rows, dtype=np.int64), np.array(cols, dtype=np.int64), dist, max_distance)
+    return _finish(
+        np.array(rows, dtype=np.int64), np.array(cols, dtype=np.int64), dist, max_distance
+    )
 
 
 def assign(dist: F64, max_distance: float, matcher: Matcher) -> Assignment:

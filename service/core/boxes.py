@@ -30,9 +30,7 @@ class Boxes:
         if self.params.ndim != 2 or self.params.shape[1] != 7:
             raise ValueError(f"params must be (N, 7), got {self.params.shape}")
         if self.score.shape != (n,) or self.cls.shape != (n,):
-            raise ValueError(
-                f"score {self.score.shape} and cls {self.cls.shape} must be ({n},)"
-            )
+            raise ValueError(f"score {self.score.shape} and cls {self.cls.shape} must be ({n},)")
         if self.velocity is not None and self.velocity.shape != (n, 2):
             raise ValueError(f"velocity must be ({n}, 2), got {self.velocity.shape}")
 

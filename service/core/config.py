@@ -42,6 +42,13 @@ class VerticalOverlap(StrEnum):
     REFERENCE = "reference"  # the reference code's formula; only for parity comparisons
 
 
+class TieOrder(StrEnum):
+    """Order of equal-score boxes in NMS (see service/core/ordering.py)."""
+
+    STABLE = "stable"  # ties in input order: the same on every machine
+    REFERENCE = "reference"  # the reference's NumPy introsort order; for parity comparisons
+
+
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
@@ -102,6 +109,7 @@ class TrackerConfig(_Frozen):
     kalman: KalmanConfig = KalmanConfig()
     output: OutputPolicy = OutputPolicy.REFERENCE
     vertical_overlap: VerticalOverlap = VerticalOverlap.EXACT
+    tie_order: TieOrder = TieOrder.STABLE
     coast_score_decay: Annotated[float, Field(ge=0.0, le=1.0)] = 0.01
     non_key: NonKeyFrameConfig = NonKeyFrameConfig()
 

@@ -92,7 +92,8 @@ def align_yaw(predicted: F64, measured: F64) -> F64:
     turned = np.where(turned > np.pi, turned - 2 * np.pi, turned)
     turned = np.where(turned < -np.pi, turned + 2 * np.pi, turned)
     out = np.where(flip, turned, pred)
-    far = diff >= 3 * np.pi / 2
+    # The reference re-reads the (possibly turned) state here: the check is "still" far apart.
+    far = np.abs(meas - out) >= 3 * np.pi / 2
     return np.asarray(
         np.where(far, out + np.where(meas > 0, 2 * np.pi, -2 * np.pi), out), dtype=np.float64
     )

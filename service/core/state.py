@@ -72,7 +72,11 @@ class TrackTable:
 
 def _pack_array(a: npt.NDArray[Any]) -> dict[str, Any]:
     a = np.ascontiguousarray(a)
-    return {"dtype": a.dtype.newbyteorder("<").str, "shape": list(a.shape), "data": a.astype(a.dtype.newbyteorder("<")).tobytes()}
+    return {
+        "dtype": a.dtype.newbyteorder("<").str,
+        "shape": list(a.shape),
+        "data": a.astype(a.dtype.newbyteorder("<")).tobytes(),
+    }
 
 
 def _unpack_array(obj: dict[str, Any]) -> npt.NDArray[Any]:

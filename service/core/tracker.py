@@ -64,7 +64,11 @@ class Tracker:
         score = tr.score * self.config.coast_score_decay
 
         # Stage 1: detections over the (per-class or non-key) high threshold.
-        high = self._score_high[dets.cls] if key else np.full(len(dets), self.config.non_key.score_high)
+        high = (
+            self._score_high[dets.cls]
+            if key
+            else np.full(len(dets), self.config.non_key.score_high)
+        )
         cand = np.flatnonzero(dets.score >= high)
         matched_det, matched_trk, unmatched_det = self._stage1(dets, cand, tr.cls, pred_box, p_pred)
 

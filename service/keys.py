@@ -1,0 +1,55 @@
+"""Zenoh key expressions of the service (documented in docs/SERVICE.md).
+
+Per sensor, under a configurable prefix (default ``fleet``):
+    <prefix>/<vehicle>/<sensor>/detections   in:  DetectionFrame
+    <prefix>/<vehicle>/<sensor>/tracks       out: TrackFrame
+    <prefix>/<vehicle>/<sensor>/errors       out: FrameError
+Per service instance (``@`` chunks never match ``*``, so fleet wildcards cannot hit them):
+    <prefix>/@simpletrack/<instance>                               liveliness token
+    <prefix>/@simpletrack/<instance>/status                        queryable: ServiceStatus
+    <prefix>/@simpletrack/<instance>/snapshot/<vehicle>/<sensor>   queryable: SensorSnapshot
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+SERVICE_CHUNK = "@simpletrack"
+DETECTIONS, TRACKS, ERRORS = "detections", "tracks", "errors"
+
+
+@dataclass(frozen=True, slots=True)
+class Keys:
+    prefix: str = "fleet"
+
+    @property
+    def all_detections(self) -> str:
+        return f"{self.prefix}/*/*/{DETECTIONS}"
+
+    def detections(self, vehicle: str, sensor: str) -> str:
+        return f"{self.prefix}/{vehicle}/{sensor}/{DETECTIONS}"
+
+    def tracks(self, vehicle: str, sensor: str) -> str:
+        return f"{self.prefix}/{vehicle}/{sensor}/{TRACKS}"
+
+    def errors(self, vehicle: str, sensor: str) -> str:
+        return f"{self.prefix}/{vehicle}/{sensor}/{ERRORS}"
+
+    def liveliness(self, instance: str = "*") -> str:
+        return f"{self.prefix}/{SERVICE_CHUNK}/{instance}"
+
+    def status(self, instance: str = "*") -> str:
+        return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/status"
+
+    def snapshot(self, instance: str = "*", vehicle: str = "*", sensor: str = "*") -> str:
+        return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/snapshot/{vehicle}/{sensor}"
+
+    def sensor_of(self, key: str) -> tuple[str, str] | None:
+        """(vehicle, sensor) of a ``.../<vehicle>/<sensor>/<leaf>`` key under this prefix."""
+        head = self.prefix + "/"
+        if not key.startswith(head):
+            return None
+        parts = key[len(head) :].split("/")
+        if len(parts) != 3:
+            return None
+        return parts[0], parts[1]

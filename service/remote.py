@@ -1,0 +1,228 @@
+"""Track a recorded sequence through a real service over Zenoh (what ``eval --transport zenoh``
+uses): the same frames in, the same ``Tracks`` out as ``Tracker.step`` in-process, up to the
+float32 rounding of the wire.
+
+    with spawn_service("kitti") as endpoint:
+        outputs = track_sequence_over_zenoh(frames, config, connect=endpoint, sensor="0003")
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from schemas.codec import Rejection, decode_message, decode_track_frame, encode_detection_frame
+from schemas.columns import BoxArrays, TrackArrays
+from schemas.models import FrameError, ServiceStatus
+from schemas.reasons import WireTrackState
+from service.core.boxes import Boxes
+from service.core.config import TrackerConfig
+from service.core.lifecycle import TrackState, UpdateKind
+from service.core.types import Frame, Tracks
+from service.keys import Keys
+from service.settings import config_digest
+from service.zenoh_config import ZenohOptions, open_session
+
+ROOT = Path(__file__).resolve().parents[1]
+STAMP_ORIGIN_NS = 1_000_000_000  # frame stamps (seconds) are sent as origin + stamp * 1e9
+
+
+class RemoteError(RuntimeError):
+    """The service refused a frame, or did not answer in time."""
+
+
+def frame_to_wire(frame: Frame, classes: Sequence[str]) -> BoxArrays:
+    b = frame.boxes
+    p = b.params
+    return BoxArrays(
+        classes=tuple(classes),
+        class_index=b.cls.astype(np.int32),
+        center=p[:, 0:3].astype(np.float32),
+        size=p[:, 4:7].astype(np.float32),
+        yaw=p[:, 3].astype(np.float32),
+        score=b.score.astype(np.float32),
+        velocity=None if b.velocity is None else b.velocity.astype(np.float32),
+    )
+
+
+def wire_to_tracks(t: TrackArrays) -> Tracks:
+    params = np.concatenate([t.center, t.yaw[:, None], t.size], axis=1).astype(np.float64)
+    state = np.where(t.state == WireTrackState.TENTATIVE, TrackState.TENTATIVE, TrackState.CONFIRMED)
+    # The wire does not say how a track was updated; "not updated this frame" is what matters.
+    update = np.where(t.time_since_update == 0, UpdateKind.MATCHED, UpdateKind.COASTED)
+    return Tracks(
+        ids=t.id.astype(np.int64),
+        boxes=Boxes.from_arrays(params, t.score, t.class_index),
+        velocity=t.velocity.astype(np.float64),
+        state=state.astype(np.int8),
+        update=update.astype(np.int8),
+        hits=t.hits.astype(np.int32),
+        age=t.age.astype(np.int32),
+        time_since_update=t.time_since_update.astype(np.int32),
+    )
+
+
+def track_sequence_over_zenoh(
+    frames: Sequence[Frame],
+    config: TrackerConfig,
+    *,
+    connect: str,
+    sensor: str = "seq",
+    vehicle: str | None = None,
+    prefix: str = "fleet",
+    window: int = 16,
+    timeout_s: float = 30.0,
+) -> list[Tracks]:
+    """Send ``frames`` (stamps in seconds, increasing) as one sensor stream to the service at
+    ``connect`` and return its tracks for every frame, in order. At most ``window`` frames are
+    in flight, so a default ``drop_oldest`` service never sheds any. Raises ``RemoteError``
+    if the service runs another tracker configuration, refuses a frame, or goes silent."""
+    keys = Keys(prefix)
+    vehicle = vehicle or f"eval-{os.getpid()}-{time.monotonic_ns() % 10**9}"
+    results: dict[int, Tracks | FrameError] = {}
+    cond = threading.Condition()
+
+    def on_tracks(sample: object) -> None:
+        out = decode_track_frame(sample.payload.to_bytes())  # type: ignore[attr-defined]
+        if isinstance(out, Rejection):
+            return
+        with cond:
+            results[out[0].seq] = wire_to_tracks(out[1])
+            cond.notify_all()
+
+    def on_error(sample: object) -> None:
+        err = decode_message(sample.payload.to_bytes(), FrameError)  # type: ignore[attr-defined]
+        if isinstance(err, Rejection) or err.seq is None:
+            return
+        with cond:
+            results[err.seq] = err
+            cond.notify_all()
+
+    import zenoh
+
+    with open_session(ZenohOptions(connect=[connect])) as session:
+        _check_config(session, keys, config, timeout_s)
+        session.declare_subscriber(keys.tracks(vehicle, sensor), on_tracks)
+        session.declare_subscriber(keys.errors(vehicle, sensor), on_error)
+        pub = session.declare_publisher(
+            keys.detections(vehicle, sensor), congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        _wait(lambda: pub.matching_status.matching, timeout_s, "the service's subscriber")
+        time.sleep(0.05)  # let our own subscriptions reach the service
+        classes = config.class_names
+        for k, frame in enumerate(frames):
+            with cond:
+                if not cond.wait_for(lambda k=k: k - len(results) < window, timeout_s):
+                    raise RemoteError(f"no tracks from the service for {timeout_s}s (frame {k})")
+            pub.put(
+                encode_detection_frame(
+                    vehicle=vehicle,
+                    sensor=sensor,
+                    seq=k,
+                    stamp_ns=STAMP_ORIGIN_NS + round(frame.stamp * 1e9),
+                    frame_id="sensor",
+                    boxes=frame_to_wire(frame, classes),
+                    pose=frame.pose,
+                    key_frame=frame.key_frame,
+                )
+            )
+        with cond:
+            if not cond.wait_for(lambda: len(results) == len(frames), timeout_s):
+                raise RemoteError(f"the service answered {len(results)} of {len(frames)} frames")
+    out = []
+    for k in range(len(frames)):
+        r = results[k]
+        if isinstance(r, FrameError):
+            raise RemoteError(f"the service refused frame {k}: {r.reason.value} ({r.detail})")
+        out.append(r)
+    return out
+
+
+def _check_config(session: object, keys: Keys, config: TrackerConfig, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        replies = list(session.get(keys.status(), timeout=2.0))  # type: ignore[attr-defined]
+        statuses = [decode_message(r.ok.payload.to_bytes(), ServiceStatus) for r in replies if r.ok]
+        good = [s for s in statuses if not isinstance(s, Rejection)]
+        if good:
+            break
+        if time.monotonic() > deadline:
+            raise RemoteError("no service answered its status query")
+        time.sleep(0.1)
+    want = config_digest(config)
+    if all(s.config_digest != want for s in good):
+        raise RemoteError(
+            "the service runs another tracker configuration "
+            f"(preset {', '.join(s.preset for s in good)}); start it with the same preset"
+        )
+
+
+def _wait(pred: object, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():  # type: ignore[operator]
+        if time.monotonic() > deadline:
+            raise RemoteError(f"timed out waiting for {what}")
+        time.sleep(0.01)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator[str]:
+    """Run ``simpletrack serve --preset PRESET`` on a free loopback port for the duration of
+    the block; yields its endpoint. Stopped with SIGTERM (no state directory)."""
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    cmd = [
+        sys.executable,
+        "-m",
+        "service.cli",
+        "serve",
+        "--listen",
+        endpoint,
+        "--metrics-port",
+        "0",
+        "--preset",
+        preset,
+        "--instance",
+        f"eval-{os.getpid()}",
+        "--backpressure",
+        "block",
+        "--log-level",
+        "warning",
+        *extra,
+    ]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + startup_s
+        with open_session(ZenohOptions(connect=[endpoint])) as session:
+            while not [r for r in session.get(Keys().status(f"eval-{os.getpid()}"), timeout=1.0) if r.ok]:
+                if proc.poll() is not None:
+                    err = proc.stderr.read().decode() if proc.stderr else ""
+                    raise RemoteError(f"the service exited: {err.strip()[-500:]}")
+                if time.monotonic() > deadline:
+                    raise RemoteError("the service did not start in time")
+                time.sleep(0.1)
+        yield endpoint
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if proc.stderr is not None:
+            proc.stderr.close()
