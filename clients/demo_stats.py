@@ -68,7 +68,9 @@ class StreamStats:
     arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=256))
     scorer: MotScorer = field(default_factory=MotScorer)
 
-    def on_tracks(self, now: float, latency_s: float, ids: npt.NDArray[np.int64], confirmed: int) -> None:
+    def on_tracks(
+        self, now: float, latency_s: float, ids: npt.NDArray[np.int64], confirmed: int
+    ) -> None:
         self.tracked += 1
         self.tracks_now = int(ids.shape[0])
         self.confirmed_now = confirmed

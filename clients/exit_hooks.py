@@ -10,6 +10,7 @@ join (it is how ``concurrent.futures`` stops its workers); we use it, falling ba
 from __future__ import annotations
 
 import atexit
+import contextlib
 import threading
 import weakref
 from typing import Protocol
@@ -19,17 +20,16 @@ class Closable(Protocol):
     def close(self) -> None: ...
 
 
-_open: weakref.WeakSet[Closable] = weakref.WeakSet()  # type: ignore[type-var]
+_open: weakref.WeakSet[Closable] = weakref.WeakSet()
 _lock = threading.Lock()
 _registered = False
 
 
 def _close_all() -> None:
     for obj in list(_open):
-        try:
+        # Best effort at exit: never turn shutdown into a traceback.
+        with contextlib.suppress(Exception):
             obj.close()
-        except Exception:  # best effort at exit: never turn shutdown into a traceback
-            pass
 
 
 def close_before_thread_join(obj: Closable) -> None:

@@ -155,9 +155,7 @@ class MotScorer:
     def _cost(self, truth: Boxes, tracks: Boxes) -> tuple[F64, F64]:
         same = truth.cls[:, None] == tracks.cls[None, :]
         if self.matching is Matching.CENTRE:
-            d = np.linalg.norm(
-                truth.params[:, None, :3] - tracks.params[None, :, :3], axis=2
-            )
+            d = np.linalg.norm(truth.params[:, None, :3] - tracks.params[None, :, :3], axis=2)
             gate = same & (d <= self.max_distance)
             return np.where(gate, d, _INVALID), d
         iou = iou_3d(truth.params, tracks.params)

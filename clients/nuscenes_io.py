@@ -1,4 +1,7 @@
-"""nuScenes CenterPoint detection files (KITTI-style camera columns) → tracker frames."""
+"""nuScenes CenterPoint detection files → tracker frames.
+
+The files use the KITTI detection columns (camera frame, bottom centre, y down), so the same
+conversion to the tracker's z-up frame applies (clients.kitti_io.camera_to_tracker)."""
 
 from __future__ import annotations
 
@@ -8,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.core.boxes import F64, Boxes, wrap_angle
+from clients.kitti_io import camera_to_tracker
+from service.core.boxes import Boxes
 
 # Column `type` of the files → nuScenes class name (barrier and cone are not tracked).
 TYPE_NAMES = {
@@ -24,13 +28,6 @@ TYPE_NAMES = {
     10: "traffic_cone",
 }
 FRAME_PERIOD_S = 0.5
-
-
-def camera_to_tracker(hwl_xyz_ry: F64) -> F64:
-    """KITTI camera boxes (h, w, l, x, y, z, rot_y; bottom centre, y down) → tracker boxes
-    (x, y, z, yaw, l, w, h; centre, z up): X = z, Y = -x, Z = -y + h/2, yaw = -rot_y - pi/2."""
-    h, w, l, x, y, z, ry = hwl_xyz_ry.T
-    return np.stack([z, -x, -y + h / 2, wrap_angle(-ry - np.pi / 2), l, w, h], axis=1)
 
 
 @dataclass(frozen=True, slots=True)

@@ -53,12 +53,13 @@ def id_colour(track_id: int) -> tuple[float, float, float]:
 
 def corners(params: F64) -> F64:
     """(N, 4, 2) BEV corners of z-up boxes (x, y, z, yaw, l, w, h)."""
-    x, y, yaw, l, w = params[:, 0], params[:, 1], params[:, 3], params[:, 4], params[:, 5]
+    x, y, yaw = params[:, 0], params[:, 1], params[:, 3]
+    length, width = params[:, 4], params[:, 5]
     c, s = np.cos(yaw), np.sin(yaw)
     dl = np.array([1, 1, -1, -1]) * 0.5
     dw = np.array([1, -1, -1, 1]) * 0.5
-    cx = x[:, None] + dl * (l * c)[:, None] - dw * (w * s)[:, None]
-    cy = y[:, None] + dl * (l * s)[:, None] + dw * (w * c)[:, None]
+    cx = x[:, None] + dl * (length * c)[:, None] - dw * (width * s)[:, None]
+    cy = y[:, None] + dl * (length * s)[:, None] + dw * (width * c)[:, None]
     return np.stack([cx, cy], axis=2)
 
 
@@ -150,7 +151,9 @@ def draw_frame(
             )
         )
         ax.add_collection(
-            LineCollection(list(_heading_segments(tracks.params)), colors=colours, linewidths=1.4, zorder=4)
+            LineCollection(
+                list(_heading_segments(tracks.params)), colors=colours, linewidths=1.4, zorder=4
+            )
         )
         tails = [np.array(history[int(i)]) for i in tracks.ids if len(history.get(int(i), [])) > 1]
         tail_colours = [id_colour(int(i)) for i in tracks.ids if len(history.get(int(i), [])) > 1]
@@ -159,8 +162,13 @@ def draw_frame(
         if style.labels:
             for i, p, c in zip(tracks.ids.tolist(), tracks.params, colours, strict=True):
                 ax.annotate(
-                    str(i), (p[0], p[1]), xytext=(4, 4), textcoords="offset points",
-                    fontsize=7, color=c, zorder=5,
+                    str(i),
+                    (p[0], p[1]),
+                    xytext=(4, 4),
+                    textcoords="offset points",
+                    fontsize=7,
+                    color=c,
+                    zorder=5,
                 )
 
 
@@ -253,9 +261,9 @@ def save_animation(
     if path.suffix.lower() == ".mp4":
         if shutil.which("ffmpeg") is None:
             raise RuntimeError("writing MP4 needs ffmpeg on PATH; write a .gif instead")
-        writer: PillowWriter | FFMpegWriter = FFMpegWriter(fps=fps)
+        writer: PillowWriter | FFMpegWriter = FFMpegWriter(fps=fps)  # type: ignore[arg-type]
     else:
-        writer = PillowWriter(fps=fps)
+        writer = PillowWriter(fps=fps)  # type: ignore[arg-type]
     path.parent.mkdir(parents=True, exist_ok=True)
     # Each frame is drawn on its own figure, rasterised, and shown in one "player" figure
     # that the writer grabs from: the writer needs a single figure for the whole animation.
@@ -279,8 +287,9 @@ def rasterise(fig: Figure) -> npt.NDArray[np.uint8]:
     """The figure's pixels, (H, W, 4) RGBA."""
     canvas = fig.canvas
     assert isinstance(canvas, FigureCanvasAgg)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba()).copy()
+    canvas.draw()  # type: ignore[no-untyped-call]
+    pixels = canvas.buffer_rgba()  # type: ignore[no-untyped-call]
+    return np.array(pixels, dtype=np.uint8)  # a copy: the canvas buffer is reused
 
 
 def save_overview(
@@ -336,8 +345,12 @@ def save_overview(
                 if len(paths[i]) < 5:
                     continue  # short-lived tracks would bury the rest under labels
                 ax.annotate(
-                    str(i), (last[i][0], last[i][1]), xytext=(4, 4),
-                    textcoords="offset points", fontsize=7, color=c,
+                    str(i),
+                    (last[i][0], last[i][1]),
+                    xytext=(4, 4),
+                    textcoords="offset points",
+                    fontsize=7,
+                    color=c,
                 )
     _legend(ax, truth is not None, False)
     span = f"frames {frames[0]}-{frames[-1]}" if frames else "no frames"

@@ -15,6 +15,7 @@ reach ``on_error`` (called on a Zenoh thread: keep it short) and the ``errors()`
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
 import time
@@ -26,6 +27,8 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from clients.exit_hooks import close_before_thread_join
+from clients.mailbox import Mailbox
 from schemas import BoxArrays, FrameError, Rejection, decode_message, encode_detection_frame
 from schemas.models import NAME_PATTERN
 from service.core.boxes import Boxes
@@ -33,13 +36,13 @@ from service.keys import Keys
 from service.settings import Congestion
 from service.zenoh_config import ZenohOptions, open_session
 
-from clients.exit_hooks import close_before_thread_join
-from clients.mailbox import Mailbox
-
 log = logging.getLogger(__name__)
 
 MSGPACK = zenoh.Encoding("application/msgpack")
-CONGESTION = {Congestion.BLOCK: zenoh.CongestionControl.BLOCK, Congestion.DROP: zenoh.CongestionControl.DROP}
+CONGESTION = {
+    Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
+    Congestion.DROP: zenoh.CongestionControl.DROP,
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,7 +161,7 @@ class DetectionPublisher:
         try:
             pub = cls(session, vehicle, sensor, **kwargs)
         except BaseException:
-            session.close()
+            session.close()  # type: ignore[no-untyped-call]
             raise
         pub._owns_session = True
         return pub
@@ -211,7 +214,9 @@ class DetectionPublisher:
         """True once some subscriber (a service) matches this sensor's detections key."""
         deadline = time.monotonic() + timeout
         while True:
-            if self._publisher.matching_status.matching:
+            # The stubs say bool; zenoh 1.10 returns a MatchingStatus.
+            status: object = self._publisher.matching_status
+            if bool(getattr(status, "matching", status)):
                 return True
             if time.monotonic() >= deadline:
                 return False
@@ -254,10 +259,8 @@ class DetectionPublisher:
             _close_quietly(self._session)
         else:
             for entity in (self._error_sub, self._publisher):
-                try:
-                    entity.undeclare()
-                except Exception:  # already gone with its session
-                    pass
+                with contextlib.suppress(Exception):  # already gone with its session
+                    entity.undeclare()  # type: ignore[no-untyped-call]
 
     def __enter__(self) -> DetectionPublisher:
         return self
@@ -276,6 +279,6 @@ def default_options() -> ZenohOptions:
 def _close_quietly(session: zenoh.Session) -> None:
     try:
         if not session.is_closed():
-            session.close()
+            session.close()  # type: ignore[no-untyped-call]
     except Exception:
         pass

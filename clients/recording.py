@@ -166,7 +166,9 @@ class KittiWriter:
             path = self.out_dir / "data_0" / f"{name}.txt"
             path.parent.mkdir(parents=True, exist_ok=True)
             calib = self._calib.get(name)
-            text = format_results(ordered, calib) if calib is not None else _format_no_calib(ordered)
+            text = (
+                format_results(ordered, calib) if calib is not None else _format_no_calib(ordered)
+            )
             tmp = path.with_suffix(".tmp")
             tmp.write_text(text)
             tmp.replace(path)

@@ -42,12 +42,16 @@ class ObjectClass(_Frozen):
     """How one class of object looks and moves."""
 
     size: tuple[Positive, Positive, Positive] = Field(description="mean l, w, h in metres")
-    size_jitter: Fraction = Field(0.1, description="relative std of each object's size")
+    size_jitter: Fraction = Field(default=0.1, description="relative std of each object's size")
     speed: tuple[NonNegative, NonNegative] = Field(description="min, max cruise speed (m/s)")
-    turn_rate_std: NonNegative = Field(description="random-walk std of the turn rate (rad/s/sqrt(s))")
-    max_turn_rate: NonNegative = Field(0.5, description="turn rate bound (rad/s)")
+    turn_rate_std: NonNegative = Field(
+        description="random-walk std of the turn rate (rad/s/sqrt(s))"
+    )
+    max_turn_rate: NonNegative = Field(default=0.5, description="turn rate bound (rad/s)")
     share: Positive = Field(description="relative share of the population")
-    detect_prob: Fraction = Field(0.95, description="chance of a detection when fully visible")
+    detect_prob: Fraction = Field(
+        default=0.95, description="chance of a detection when fully visible"
+    )
 
     @model_validator(mode="after")
     def _speed_ordered(self) -> ObjectClass:
@@ -81,7 +85,7 @@ class SensorSpec(_Frozen):
 
     name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="key-safe sensor id")
     mount: tuple[float, float, float, float] = Field(
-        (0.0, 0.0, 1.8, 0.0), description="x, y, z, yaw of the sensor in the vehicle frame"
+        default=(0.0, 0.0, 1.8, 0.0), description="x, y, z, yaw of the sensor in the vehicle frame"
     )
     fov_deg: Annotated[float, Field(gt=0.0, le=360.0)] = 360.0
     max_range: Positive = 50.0
@@ -98,32 +102,34 @@ def default_sensors() -> tuple[SensorSpec, ...]:
 class DetectorModel(_Frozen):
     """The faults of the simulated detector. Scores are probabilities in [0, 1]."""
 
-    centre_noise: NonNegative = Field(0.12, description="centre std (m) at zero range")
-    centre_noise_per_m: NonNegative = Field(0.004, description="extra centre std per metre")
-    yaw_noise: NonNegative = Field(0.06, description="yaw std (rad)")
-    size_noise: Fraction = Field(0.05, description="relative size std")
+    centre_noise: NonNegative = Field(default=0.12, description="centre std (m) at zero range")
+    centre_noise_per_m: NonNegative = Field(default=0.004, description="extra centre std per metre")
+    yaw_noise: NonNegative = Field(default=0.06, description="yaw std (rad)")
+    size_noise: Fraction = Field(default=0.05, description="relative size std")
     occlusion_miss: Fraction = Field(
-        0.6, description="a fully hidden object's detection chance is cut by this fraction"
+        default=0.6, description="a fully hidden object's detection chance is cut by this fraction"
     )
     occlusion_low_score: Fraction = Field(
-        0.6, description="a fully hidden object, when detected, gets a low score this often"
+        default=0.6, description="a fully hidden object, when detected, gets a low score this often"
     )
     range_miss: Fraction = Field(
-        0.15, description="an object at max range has its detection chance cut by this fraction"
+        default=0.15,
+        description="an object at max range has its detection chance cut by this fraction",
     )
     low_score_prob: Fraction = Field(
-        0.08, description="chance a clear detection gets a low score (stage-2 material)"
+        default=0.08, description="chance a clear detection gets a low score (stage-2 material)"
     )
     score_high: tuple[Fraction, Fraction] = (0.72, 0.99)
     score_low: tuple[Fraction, Fraction] = (0.12, 0.45)
     duplicate_prob: Fraction = Field(
-        0.08, description="chance of a second, overlapping, lower-score box (NMS removes it)"
+        default=0.08,
+        description="chance of a second, overlapping, lower-score box (NMS removes it)",
     )
     false_positives: NonNegative = Field(
-        0.8, description="mean false positives per sensor frame (Poisson)"
+        default=0.8, description="mean false positives per sensor frame (Poisson)"
     )
     false_positive_high: Fraction = Field(
-        0.15, description="share of false positives with a high score"
+        default=0.15, description="share of false positives with a high score"
     )
 
 
@@ -135,16 +141,16 @@ class SimConfig(_Frozen):
     sensors: tuple[SensorSpec, ...] = Field(default_factory=default_sensors, min_length=1)
     classes: dict[str, ObjectClass] = Field(default_factory=default_classes, min_length=1)
     objects: Annotated[int, Field(ge=0, le=10_000)] = Field(
-        90, description="objects alive at any time (leavers are replaced by newcomers)"
+        default=90, description="objects alive at any time (leavers are replaced by newcomers)"
     )
     area: Annotated[float, Field(gt=10.0)] = Field(
-        180.0, description="side of the square world (m), centred on the origin"
+        default=180.0, description="side of the square world (m), centred on the origin"
     )
     rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] = 10.0
     ego_speed: tuple[NonNegative, NonNegative] = (5.0, 10.0)
     detector: DetectorModel = DetectorModel()
     truth_ignore_occlusion: Fraction = Field(
-        0.8, description="ground truth hidden more than this is 'ignored' by the scorer"
+        default=0.8, description="ground truth hidden more than this is 'ignored' by the scorer"
     )
 
     @model_validator(mode="after")
@@ -193,7 +199,7 @@ class SensorFrame:
 
     @property
     def truth_in_sensor_frame(self) -> Boxes:
-        return transform_boxes(self.truth, np.linalg.inv(self.pose))
+        return transform_boxes(self.truth, np.linalg.inv(self.pose).astype(np.float64))
 
 
 def pose_matrix(x: float, y: float, z: float, yaw: float) -> F64:
@@ -237,7 +243,7 @@ class _Objects:
         if n == 0:
             return
         rng = self.rng
-        cls = rng.choice(len(self.models), size=n, p=self.class_p).astype(np.int32)
+        cls = np.asarray(rng.choice(len(self.models), size=n, p=self.class_p), dtype=np.int32)
         lo, hi = self.speed_range[cls, 0], self.speed_range[cls, 1]
         speed = rng.uniform(lo, hi)
         size = self.mean_size[cls] * (
@@ -342,12 +348,16 @@ def _angular_halfwidth(local: Boxes) -> tuple[F64, F64, F64]:
     bearing = np.arctan2(y, x)
     c, s = np.cos(yaw), np.sin(yaw)
     hl, hw = local.l / 2, local.w / 2
-    corners_x = x[:, None] + np.array([1, 1, -1, -1]) * (hl * c)[:, None] - np.array(
-        [1, -1, -1, 1]
-    ) * (hw * s)[:, None]
-    corners_y = y[:, None] + np.array([1, 1, -1, -1]) * (hl * s)[:, None] + np.array(
-        [1, -1, -1, 1]
-    ) * (hw * c)[:, None]
+    corners_x = (
+        x[:, None]
+        + np.array([1, 1, -1, -1]) * (hl * c)[:, None]
+        - np.array([1, -1, -1, 1]) * (hw * s)[:, None]
+    )
+    corners_y = (
+        y[:, None]
+        + np.array([1, 1, -1, -1]) * (hl * s)[:, None]
+        + np.array([1, -1, -1, 1]) * (hw * c)[:, None]
+    )
     rel = wrap_angle(np.arctan2(corners_y, corners_x) - bearing[:, None])
     return rng_, bearing, np.abs(rel).max(axis=1)
 
@@ -441,7 +451,9 @@ class _Detector:
         params[:, 3] = rng.uniform(-np.pi, np.pi, size=k)
         params[:, 4:7] = size
         high = rng.random(k) < m.false_positive_high
-        score = np.where(high, rng.uniform(*m.score_high, size=k), rng.uniform(*m.score_low, size=k))
+        score = np.where(
+            high, rng.uniform(*m.score_high, size=k), rng.uniform(*m.score_low, size=k)
+        )
         return Boxes(params=params, score=score, cls=cls)
 
 
@@ -491,7 +503,11 @@ class FleetSimulator:
     @property
     def streams(self) -> list[tuple[str, str]]:
         """(vehicle, sensor) of every stream, in the order ``step()`` returns frames."""
-        return [(vehicle_id(v), s.name) for v in range(self.config.vehicles) for s in self.config.sensors]
+        return [
+            (vehicle_id(v), s.name)
+            for v in range(self.config.vehicles)
+            for s in self.config.sensors
+        ]
 
     def step(self) -> list[SensorFrame]:
         t = self.stamp
@@ -521,7 +537,7 @@ class FleetSimulator:
         ids: I64,
         t: float,
     ) -> SensorFrame:
-        local_all = transform_boxes(world, np.linalg.inv(pose))
+        local_all = transform_boxes(world, np.linalg.inv(pose).astype(np.float64))
         visible = detector.in_view(local_all)
         local = local_all.take(visible)
         occluded = occlusion(local)

@@ -17,6 +17,7 @@ closes the session the subscriber opened: no thread stays blocked at exit.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
@@ -81,21 +82,26 @@ class TrackMessage:
         codes = t.class_index.astype(np.int32)
         keep = np.ones(len(t), dtype=bool)
         if classes is not None:
-            remap = np.array([classes.index(c) if c in classes else -1 for c in t.classes], np.int32)
+            remap = np.array(
+                [classes.index(c) if c in classes else -1 for c in t.classes], np.int32
+            )
             codes = remap[codes] if len(t) else codes
             keep = codes >= 0
         boxes = Boxes(
-            params=params, score=t.score.astype(np.float64), cls=codes, velocity=t.velocity[:, :2].astype(np.float64)
+            params=params,
+            score=t.score.astype(np.float64),
+            cls=codes,
+            velocity=t.velocity[:, :2].astype(np.float64),
         )
         return boxes if keep.all() else boxes.take(keep)
 
     def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
         """Track ids, in the order of ``boxes(classes)``."""
+        ids: np.ndarray[Any, np.dtype[np.int64]] = self.tracks.id.astype(np.int64)
         if classes is None:
-            return self.tracks.id.astype(np.int64)
-        names = self.class_names()
-        keep = np.array([n in classes for n in names], dtype=bool)
-        return self.tracks.id.astype(np.int64)[keep]
+            return ids
+        keep = np.array([n in classes for n in self.class_names()], dtype=bool)
+        return np.asarray(ids[keep], dtype=np.int64)
 
 
 def tracks_key(prefix: str = "fleet", vehicle: str = "*", sensor: str = "*") -> str:
@@ -139,7 +145,7 @@ class TrackSubscriber:
         try:
             sub = cls(session, **kwargs)
         except BaseException:
-            session.close()
+            session.close()  # type: ignore[no-untyped-call]
             raise
         sub._owns_session = True
         return sub
@@ -196,10 +202,8 @@ class TrackSubscriber:
         if self._owns_session:
             _close_quietly(self._session)
         else:
-            try:
-                self._sub.undeclare()
-            except Exception:  # already gone with its session
-                pass
+            with contextlib.suppress(Exception):  # already gone with its session
+                self._sub.undeclare()  # type: ignore[no-untyped-call]
 
     def __enter__(self) -> TrackSubscriber:
         return self

@@ -136,7 +136,12 @@ def _jsonl_box(t: dict[str, Any]) -> tuple[int, list[float], str, float]:
     if len(box) != 7:
         raise ValueError(f"box has {len(box)} values, expected 7")
     score = t.get("score")
-    return int(t.get("id", -1)), box, str(t.get("cls", "?")), float("nan" if score is None else score)
+    return (
+        int(t.get("id", -1)),
+        box,
+        str(t.get("cls", "?")),
+        float("nan" if score is None else score),
+    )
 
 
 def read_kitti(path: Path) -> Sequence:

@@ -20,7 +20,7 @@ from typing import Any
 import zenoh
 
 from schemas.codec import DecodeLimits, encode
-from schemas.models import NAME_PATTERN, FrameError, ServiceStatus
+from schemas.models import FrameError, ServiceStatus
 from schemas.reasons import SCHEMA_VERSION, ErrorReason
 from service.core.tracker import Tracker
 from service.intake import Inbound, Intake, WorkQueue, depth, worker_index
@@ -277,4 +277,4 @@ def run(settings: ServiceSettings) -> int:
     return 0
 
 
-__all__ = ["NAME_PATTERN", "Service", "run"]
+__all__ = ["Service", "run"]

@@ -18,6 +18,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "clients.commands.plot",
     "clients.commands.replay",
     "clients.commands.record",
+    "clients.commands.demo",
+    "clients.commands.watch",
     "service.commands.serve",
 )
 

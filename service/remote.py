@@ -13,12 +13,14 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from schemas.codec import Rejection, decode_message, decode_track_frame, encode_detection_frame
 from schemas.columns import BoxArrays, TrackArrays
@@ -56,7 +58,9 @@ def frame_to_wire(frame: Frame, classes: Sequence[str]) -> BoxArrays:
 
 def wire_to_tracks(t: TrackArrays) -> Tracks:
     params = np.concatenate([t.center, t.yaw[:, None], t.size], axis=1).astype(np.float64)
-    state = np.where(t.state == WireTrackState.TENTATIVE, TrackState.TENTATIVE, TrackState.CONFIRMED)
+    state = np.where(
+        t.state == WireTrackState.TENTATIVE, TrackState.TENTATIVE, TrackState.CONFIRMED
+    )
     # The wire does not say how a track was updated; "not updated this frame" is what matters.
     update = np.where(t.time_since_update == 0, UpdateKind.MATCHED, UpdateKind.COASTED)
     return Tracks(
@@ -91,23 +95,21 @@ def track_sequence_over_zenoh(
     results: dict[int, Tracks | FrameError] = {}
     cond = threading.Condition()
 
-    def on_tracks(sample: object) -> None:
-        out = decode_track_frame(sample.payload.to_bytes())  # type: ignore[attr-defined]
+    def on_tracks(sample: zenoh.Sample) -> None:
+        out = decode_track_frame(sample.payload.to_bytes())
         if isinstance(out, Rejection):
             return
         with cond:
             results[out[0].seq] = wire_to_tracks(out[1])
             cond.notify_all()
 
-    def on_error(sample: object) -> None:
-        err = decode_message(sample.payload.to_bytes(), FrameError)  # type: ignore[attr-defined]
+    def on_error(sample: zenoh.Sample) -> None:
+        err = decode_message(sample.payload.to_bytes(), FrameError)
         if isinstance(err, Rejection) or err.seq is None:
             return
         with cond:
             results[err.seq] = err
             cond.notify_all()
-
-    import zenoh
 
     with open_session(ZenohOptions(connect=[connect])) as session:
         _check_config(session, keys, config, timeout_s)
@@ -116,12 +118,18 @@ def track_sequence_over_zenoh(
         pub = session.declare_publisher(
             keys.detections(vehicle, sensor), congestion_control=zenoh.CongestionControl.BLOCK
         )
-        _wait(lambda: pub.matching_status.matching, timeout_s, "the service's subscriber")
+        # The stub says bool; at runtime it is a MatchingStatus.
+        _wait(
+            lambda: bool(pub.matching_status.matching),  # type: ignore[attr-defined]
+            timeout_s,
+            "the service's subscriber",
+        )
         time.sleep(0.05)  # let our own subscriptions reach the service
         classes = config.class_names
         for k, frame in enumerate(frames):
+            in_flight_ok = _room(results, k, window)
             with cond:
-                if not cond.wait_for(lambda k=k: k - len(results) < window, timeout_s):
+                if not cond.wait_for(in_flight_ok, timeout_s):
                     raise RemoteError(f"no tracks from the service for {timeout_s}s (frame {k})")
             pub.put(
                 encode_detection_frame(
@@ -147,10 +155,16 @@ def track_sequence_over_zenoh(
     return out
 
 
-def _check_config(session: object, keys: Keys, config: TrackerConfig, timeout_s: float) -> None:
+def _room(results: dict[int, Tracks | FrameError], k: int, window: int) -> Callable[[], bool]:
+    return lambda: k - len(results) < window
+
+
+def _check_config(
+    session: zenoh.Session, keys: Keys, config: TrackerConfig, timeout_s: float
+) -> None:
     deadline = time.monotonic() + timeout_s
     while True:
-        replies = list(session.get(keys.status(), timeout=2.0))  # type: ignore[attr-defined]
+        replies = list(session.get(keys.status(), timeout=2.0))
         statuses = [decode_message(r.ok.payload.to_bytes(), ServiceStatus) for r in replies if r.ok]
         good = [s for s in statuses if not isinstance(s, Rejection)]
         if good:
@@ -166,9 +180,9 @@ def _check_config(session: object, keys: Keys, config: TrackerConfig, timeout_s:
         )
 
 
-def _wait(pred: object, timeout_s: float, what: str) -> None:
+def _wait(pred: Callable[[], bool], timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
-    while not pred():  # type: ignore[operator]
+    while not pred():
         if time.monotonic() > deadline:
             raise RemoteError(f"timed out waiting for {what}")
         time.sleep(0.01)
@@ -180,11 +194,20 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _port_open(endpoint: str) -> bool:
+    host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+    with socket.socket() as s:
+        s.settimeout(0.2)
+        return s.connect_ex((host, int(port))) == 0
+
+
 @contextlib.contextmanager
 def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator[str]:
     """Run ``simpletrack serve --preset PRESET`` on a free loopback port for the duration of
-    the block; yields its endpoint. Stopped with SIGTERM (no state directory)."""
+    the block (lossless backpressure, no metrics port, no state directory); yields its
+    endpoint. Stopped with SIGTERM."""
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    instance = f"eval-{os.getpid()}"
     cmd = [
         sys.executable,
         "-m",
@@ -197,32 +220,40 @@ def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator
         "--preset",
         preset,
         "--instance",
-        f"eval-{os.getpid()}",
+        instance,
         "--backpressure",
         "block",
         "--log-level",
         "warning",
         *extra,
     ]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + startup_s
-        with open_session(ZenohOptions(connect=[endpoint])) as session:
-            while not [r for r in session.get(Keys().status(f"eval-{os.getpid()}"), timeout=1.0) if r.ok]:
+    with tempfile.TemporaryFile() as log:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log)
+        try:
+            deadline = time.monotonic() + startup_s
+            while not _port_open(endpoint):
                 if proc.poll() is not None:
-                    err = proc.stderr.read().decode() if proc.stderr else ""
-                    raise RemoteError(f"the service exited: {err.strip()[-500:]}")
+                    log.seek(0)
+                    tail = log.read().decode(errors="replace").strip()[-500:]
+                    raise RemoteError(f"the service exited ({proc.returncode}): {tail}")
                 if time.monotonic() > deadline:
                     raise RemoteError("the service did not start in time")
-                time.sleep(0.1)
-        yield endpoint
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stderr is not None:
-            proc.stderr.close()
+                time.sleep(0.05)
+            with open_session(ZenohOptions(connect=[endpoint])) as session:
+                _check_started(session, Keys().status(instance), deadline)
+            yield endpoint
+        finally:
+            if proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+
+def _check_started(session: zenoh.Session, status_key: str, deadline: float) -> None:
+    while not [r for r in session.get(status_key, timeout=1.0) if r.ok]:
+        if time.monotonic() > deadline:
+            raise RemoteError("the service did not answer its status query in time")
+        time.sleep(0.05)

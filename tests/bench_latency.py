@@ -54,7 +54,9 @@ def load_scene(path: Path) -> list[BoxArrays]:
     return out
 
 
-def run(sensors: int, seconds: float, rate: float, workers: int) -> dict[str, object]:
+def run(
+    sensors: int, seconds: float, rate: float, workers: int, queue_size: int
+) -> dict[str, object]:
     scenes = [load_scene(p) for p in sorted(NUSCENES.glob("scene-*.txt"))[:sensors]]
     boxes_per_frame = float(np.mean([len(b) for s in scenes for b in s]))
     received: dict[tuple[str, int], int] = {}
@@ -84,7 +86,10 @@ def run(sensors: int, seconds: float, rate: float, workers: int) -> dict[str, ob
             str(workers),
             "--log-level",
             "error",
-            env={"SIMPLETRACK_IGNORE_CLASSES": json.dumps(UNTRACKED)},
+            env={
+                "SIMPLETRACK_IGNORE_CLASSES": json.dumps(UNTRACKED),
+                "SIMPLETRACK_QUEUE_SIZE": str(queue_size),
+            },
             instance="bench",
         )
         session = open_session(mode="peer", connect=[svc.endpoint])
@@ -140,6 +145,7 @@ def run(sensors: int, seconds: float, rate: float, workers: int) -> dict[str, ob
         "rate_hz": rate,
         "seconds": seconds,
         "workers": workers,
+        "queue_size": queue_size,
         "boxes_per_frame": round(boxes_per_frame, 1),
         "frames_sent": sensors * ticks,
         "frames_tracked": len(received),
@@ -165,11 +171,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--rate", type=float, default=10.0, help="frames per second per sensor")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--queue-size", type=int, default=64, help="per worker")
     args = parser.parse_args(argv)
     if not NUSCENES.is_dir():
         print(f"no nuScenes detections under {NUSCENES}", file=sys.stderr)
         return 2
-    print(json.dumps(run(args.sensors, args.seconds, args.rate, args.workers)))
+    print(json.dumps(run(args.sensors, args.seconds, args.rate, args.workers, args.queue_size)))
     return 0
 
 

@@ -11,7 +11,9 @@ from service.core.config import ClassConfig, OutputPolicy, TrackerConfig
 from service.core.types import Frame
 
 
-def car(x: float, y: float = 0.0, score: float = 0.9, cls: int = 0, yaw: float = 0.0) -> list[float]:
+def car(
+    x: float, y: float = 0.0, score: float = 0.9, cls: int = 0, yaw: float = 0.0
+) -> list[float]:
     return [x, y, 0.0, yaw, 4.0, 2.0, 1.5, score, cls]
 
 

@@ -12,8 +12,8 @@ def test_hungarian_finds_the_global_optimum_where_greedy_does_not() -> None:
     dist = np.array([[0.1, 0.2], [0.15, 1.0]])
     h = hungarian(dist, 0.5)
     g = greedy(dist, 0.5)
-    assert sorted(zip(h.det.tolist(), h.track.tolist())) == [(0, 1), (1, 0)]
-    assert sorted(zip(g.det.tolist(), g.track.tolist())) == [(0, 0)]
+    assert sorted(zip(h.det.tolist(), h.track.tolist(), strict=True)) == [(0, 1), (1, 0)]
+    assert sorted(zip(g.det.tolist(), g.track.tolist(), strict=True)) == [(0, 0)]
     assert g.unmatched_dets.tolist() == [1] and g.unmatched_tracks.tolist() == [1]
 
 

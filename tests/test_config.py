@@ -9,7 +9,7 @@ from service.core.config import ClassConfig, OutputPolicy, TrackerConfig, preset
 
 
 def test_bad_values_are_rejected_with_the_value() -> None:
-    with pytest.raises(ValidationError, match="1.7"):
+    with pytest.raises(ValidationError, match=r"1\.7"):
         ClassConfig(score_high=1.7)
     with pytest.raises(ValidationError, match="-3"):
         ClassConfig(max_age=-3)

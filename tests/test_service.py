@@ -322,3 +322,19 @@ def test_serve_help_lists_the_flags() -> None:
     ).stdout
     for flag in ("--mode", "--listen", "--connect", "--metrics-port", "--state-dir", "--config"):
         assert flag in out
+
+
+def test_with_a_pose_tracks_come_back_in_the_world_frame(cli: Client) -> None:
+    pose = np.eye(4)
+    pose[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # sensor yawed 90 degrees
+    pose[:3, 3] = [100.0, -50.0, 2.0]
+    for k in range(3):
+        cli.send("car-10", "lidar", seq=k, stamp_ns=stamp(k), boxes=moving_cars(k), pose=pose)
+    wait_for(lambda: cli.received.n_tracks("car-10/lidar") == 3, 20, "3 frames")
+    frame, tracks = cli.received.tracks["car-10/lidar"][-1]
+    assert frame.frame_id == "world" and frame.pose == pose.reshape(16).tolist()
+    local = moving_cars(2).center.astype(np.float64)
+    world = local @ pose[:3, :3].T + pose[:3, 3]
+    got = tracks.center[np.argsort(tracks.center[:, 0])]
+    np.testing.assert_allclose(got, world[np.argsort(world[:, 0])], atol=0.05)
+    np.testing.assert_allclose(tracks.yaw, np.pi / 2, atol=1e-3)

@@ -78,7 +78,9 @@ def test_ground_truth_is_consistent(world: list[list[SensorFrame]]) -> None:
             r = np.hypot(local.x, local.y)
             spec = {s.name: s for s in SimConfig().sensors}[f.sensor]
             assert (r <= spec.max_range + 1e-9).all()
-            assert (np.abs(np.arctan2(local.y, local.x)) <= math.radians(spec.fov_deg) / 2 + 1e-9).all()
+            assert (
+                np.abs(np.arctan2(local.y, local.x)) <= math.radians(spec.fov_deg) / 2 + 1e-9
+            ).all()
             for i, p in zip(f.truth_ids.tolist(), f.truth.params, strict=True):
                 # An object keeps its size and moves no faster than its class allows.
                 np.testing.assert_array_equal(sizes.setdefault(i, p[4:7]), p[4:7])

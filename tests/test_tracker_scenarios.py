@@ -67,7 +67,8 @@ def test_track_dies_after_max_age_missed_frames() -> None:
     t.step(frame([], 0.4))
     assert len(t.tracks) == 0  # max_age misses: dead
     # A detection at the same place now starts a new identity: ids are never reused.
-    assert _ids(t, [car(2.5)], 0.5) == [1]
+    t.step(frame([car(2.5)], 0.5))
+    assert t.tracks.ids.tolist() == [1]
 
 
 def test_identity_kept_through_a_one_frame_gap() -> None:
@@ -97,8 +98,9 @@ def test_two_stage_association_keeps_identity_through_low_scores() -> None:
 def test_detection_never_matches_a_track_of_another_class() -> None:
     t = Tracker(config(min_hits=1))
     t.step(frame([car(0.0, cls=0)], 0.0))
-    out = t.step(frame([car(0.0, cls=1)], 0.1))
-    assert out.ids.tolist() == [1] and out.boxes.cls.tolist() == [1]
+    t.step(frame([car(0.0, cls=1)], 0.1))
+    assert t.tracks.ids.tolist() == [0, 1] and t.tracks.cls.tolist() == [0, 1]
+    assert t.tracks.time_since_update.tolist() == [1, 0]  # the car track was not updated
 
 
 def test_low_score_detections_never_start_tracks() -> None:

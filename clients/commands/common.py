@@ -18,7 +18,9 @@ ZENOH_NOTE = (
     f"({DEFAULT_LISTEN[0]}); use --connect to reach another one, --mode client for routers."
 )
 
-_PREFIX = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}(/[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}){0,7}$")
+_PREFIX = re.compile(
+    r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}(/[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}){0,7}$"
+)
 
 
 def add_client_args(parser: argparse.ArgumentParser, prefix: bool = True) -> None:
@@ -31,7 +33,9 @@ def add_client_args(parser: argparse.ArgumentParser, prefix: bool = True) -> Non
 
 def check_prefix(prefix: str) -> str:
     if not _PREFIX.match(prefix):
-        raise UserError(f"--prefix {prefix!r} must be key chunks of letters, digits, _ . - (no wildcards)")
+        raise UserError(
+            f"--prefix {prefix!r} must be key chunks of letters, digits, _ . - (no wildcards)"
+        )
     return prefix
 
 
@@ -53,4 +57,6 @@ def open_client_session(options: ZenohOptions) -> zenoh.Session:
         return open_session(options)
     except zenoh.ZError as exc:
         where = ", ".join(options.connect) or "no endpoint"
-        raise UserError(f"cannot open a Zenoh session ({options.mode.value}, {where}): {exc}") from None
+        raise UserError(
+            f"cannot open a Zenoh session ({options.mode.value}, {where}): {exc}"
+        ) from None

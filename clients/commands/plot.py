@@ -65,7 +65,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     p.add_argument("--classes", help="only these classes, comma separated (case-insensitive)")
     p.add_argument("--frames", help="START:END (END exclusive) or a comma-separated list")
-    p.add_argument("--size", default="900x900", help="picture size in pixels, WxH (default 900x900)")
+    p.add_argument(
+        "--size", default="900x900", help="picture size in pixels, WxH (default 900x900)"
+    )
     p.add_argument("--fps", type=float, default=10.0, help="animation frame rate (default 10)")
     p.add_argument("--tail", type=int, default=15, help="trajectory frames behind each track")
     p.add_argument("--no-labels", action="store_true", help="do not write track ids")
@@ -127,7 +129,9 @@ def run(args: argparse.Namespace) -> int:
     classes = {c.strip() for c in args.classes.split(",")} if args.classes else None
     fmt = FileFormat(args.format)
     try:
-        tracks = {k: v.only(classes) for k, v in read_sequence(args.tracks, fmt, args.stream).items()}
+        tracks = {
+            k: v.only(classes) for k, v in read_sequence(args.tracks, fmt, args.stream).items()
+        }
         truth = None
         if args.truth is not None:
             truth_fmt = fmt if fmt is not FileFormat.KITTI_DETECTIONS else FileFormat.AUTO
@@ -145,7 +149,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.tracks}: no tracks to draw")
 
     frames = parse_frames(args.frames, sorted(tracks))
-    style = plot.PlotStyle(width=width, height=height, tail=max(args.tail, 1), labels=not args.no_labels)
+    style = plot.PlotStyle(
+        width=width, height=height, tail=max(args.tail, 1), labels=not args.no_labels
+    )
     title = args.title or args.tracks.name
     if kind == "overview":
         chosen = {k: tracks[k] for k in frames if k in tracks}

@@ -116,7 +116,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         sub = TrackSubscriber(session, key_expr=keys)
         if not args.quiet:
-            print(f"recording {keys} to {args.out} ({args.format}); Ctrl-C to stop", file=sys.stderr, flush=True)
+            print(
+                f"recording {keys} to {args.out} ({args.format}); Ctrl-C to stop",
+                file=sys.stderr,
+                flush=True,
+            )
         while not stop.is_set():
             now = time.monotonic()
             if args.duration is not None and now - started >= args.duration:
@@ -144,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         invalid = sub.invalid
         sub.close()
     finally:
-        session.close()
+        session.close()  # type: ignore[no-untyped-call]
         paths = kitti.close() if kitti is not None else []
         if jsonl is not None:
             jsonl.close()

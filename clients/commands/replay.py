@@ -86,9 +86,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default=None,
         help="frames per second, or 'max' (default: the data's rate, 10 KITTI / 2 nuScenes)",
     )
-    p.add_argument(
-        "--window", type=int, default=32, help="frames in flight at most (default 32)"
-    )
+    p.add_argument("--window", type=int, default=32, help="frames in flight at most (default 32)")
     p.add_argument(
         "--congestion",
         choices=[c.value for c in Congestion],
@@ -124,7 +122,9 @@ class Sequence_:
     period: float
 
 
-def load_kitti(data: Path, seqs: list[str] | None, classes: list[str] | None) -> Iterator[Sequence_]:
+def load_kitti(
+    data: Path, seqs: list[str] | None, classes: list[str] | None
+) -> Iterator[Sequence_]:
     from clients.kitti_io import FRAME_PERIOD, KITTI_CLASSES, load_sequence
 
     config = preset("kitti")
@@ -323,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         outcome = "interrupted"
     finally:
-        session.close()
+        session.close()  # type: ignore[no-untyped-call]
 
     elapsed = time.monotonic() - started
     answered = answers.count()

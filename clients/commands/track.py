@@ -13,7 +13,7 @@ from typing import Any
 from clients.nuscenes_io import read_scene, scene_files
 from clients.parity import compare, group_rows
 from service.cli import UserError
-from service.core.config import TrackerConfig, VerticalOverlap, preset
+from service.core.config import TieOrder, TrackerConfig, VerticalOverlap, preset
 from service.core.lifecycle import TrackState
 from service.core.tracker import Tracker
 from service.core.types import Frame
@@ -39,6 +39,12 @@ def register(sub: Any) -> None:
     p.add_argument("--preset", default="nuscenes")
     p.add_argument(
         "--vertical-overlap", choices=[v.value for v in VerticalOverlap], default="exact"
+    )
+    p.add_argument(
+        "--tie-order",
+        choices=[v.value for v in TieOrder],
+        default="stable",
+        help="order of equal-score boxes in NMS (reference: the reference code's NumPy order)",
     )
     p.add_argument("--out", type=Path, help="JSON lines output (one line per output box)")
     p.add_argument(
@@ -91,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.data.is_dir():
         raise UserError(f"--data {args.data} is not a directory")
     try:
-        config = preset(args.preset).with_overrides(vertical_overlap=args.vertical_overlap)
+        config = preset(args.preset).with_overrides(
+            vertical_overlap=args.vertical_overlap, tie_order=args.tie_order
+        )
         files = list(scene_files(args.data, [s for s in args.scenes.split(",") if s]))
     except (ValueError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
@@ -124,4 +132,3 @@ def run(args: argparse.Namespace) -> int:
         report = compare(ref, group_rows(rows))
         print(json.dumps(report.as_dict(), indent=1))
     return 0
-

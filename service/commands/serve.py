@@ -91,8 +91,7 @@ def run(args: argparse.Namespace) -> int:
     from service import app  # heavy imports only once the arguments are known to be good
 
     try:
-        service_settings = settings
-        return app.run(service_settings)
+        return app.run(settings)
     except ValueError as e:  # bad tracker overrides, ignore_classes
         raise UserError(str(e)) from None
     except OSError as e:  # metrics port taken, state dir not writable

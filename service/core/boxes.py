@@ -77,7 +77,8 @@ class Boxes:
     def valid_mask(self) -> Bool:
         """Boxes with positive, finite sizes and finite everything else."""
         finite = np.isfinite(self.params).all(axis=1) & np.isfinite(self.score)
-        return finite & (self.params[:, L:].min(axis=1, initial=np.inf) > 0)
+        positive = self.params[:, L:].min(axis=1, initial=np.inf) > 0
+        return np.asarray(finite & positive, dtype=np.bool_)
 
     @property
     def x(self) -> F64:

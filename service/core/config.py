@@ -59,8 +59,8 @@ class _Frozen(BaseModel):
 class ClassConfig(_Frozen):
     """Per-class parameters."""
 
-    score_high: Probability = Field(0.7, description="stage-1 score threshold (>=)")
-    score_low: Probability = Field(0.1, description="stage-2 score threshold (>)")
+    score_high: Probability = Field(default=0.7, description="stage-1 score threshold (>=)")
+    score_low: Probability = Field(default=0.1, description="stage-2 score threshold (>)")
     two_stage: bool = Field(True, description="extend unmatched tracks with low-score detections")
     nms_iou: Annotated[float, Field(gt=0.0, le=1.0)] = Field(
         0.25, description="suppress same-class boxes with 3D IoU above this"

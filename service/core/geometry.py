@@ -7,7 +7,7 @@ four half-planes become the two slabs |x| <= l/2 and |y| <= w/2.
 
 Both areas are exact up to rounding (no tolerances, no sorting, fixed-size arrays):
 - Intersection: b's outline clipped by a's two slabs. Each edge keeps three slots (its start, and
-  the ends of its part inside the slab), with x clamped into the slab: an outside run then becomes
+  the ends of its part inside the slab), clamped into the slab: an outside run then becomes
   a detour along the slab's boundary line, which encloses no area, so the shoelace formula over
   the fixed slots gives the clipped area. Only pairs whose circumscribed circles meet are clipped.
 - Hull: the hull's support function is the max of both boxes' support functions h_a, h_b. Listing

@@ -6,8 +6,9 @@ import numpy as np
 import numpy.typing as npt
 
 from service.core.boxes import Boxes
-from service.core.config import VerticalOverlap
+from service.core.config import TieOrder, VerticalOverlap
 from service.core.geometry import iou_3d_pairs
+from service.core.ordering import descending_reference, descending_stable
 
 I64 = npt.NDArray[np.int64]
 
@@ -25,13 +26,14 @@ def nms(
     iou_threshold: npt.ArrayLike,
     *,
     vertical: VerticalOverlap = VerticalOverlap.EXACT,
+    tie_order: TieOrder = TieOrder.STABLE,
 ) -> I64:
     """Kept indices after per-class NMS: classes in ascending code, each in descending score.
 
     ``iou_threshold[c]`` is class c's threshold: a box is suppressed when its 3D IoU with an
     already kept box of its class is > the threshold (the reference keeps IoU <= threshold).
-    Within a class, equal scores keep the reference's order: ``argsort(scores)[::-1]`` over the
-    class's rows in input order.
+    Within a class, equal scores keep input order (``STABLE``) or the order the reference saw
+    (``REFERENCE``: NumPy's classic introsort; see service/core/ordering.py).
     """
     thr = np.asarray(iou_threshold, dtype=np.float64).reshape(-1)
     if len(boxes) == 0:
@@ -50,10 +52,11 @@ def nms(
     rows, cols = rows[hit], cols[hit]  # still row-major: each row's partners are contiguous
     start = np.searchsorted(rows, np.arange(len(boxes) + 1)).tolist()
     partners = cols.tolist()
+    descending = descending_stable if tie_order is TieOrder.STABLE else descending_reference
     walk: list[I64] = []
     for code in codes:
         members = np.flatnonzero(cls == code)
-        walk.append(members[np.argsort(boxes.score[members])[::-1]])
+        walk.append(members[descending(boxes.score[members])])
     order = np.concatenate(walk)
     # The greedy walk is over boxes, not pairs: a kept box suppresses its listed partners.
     suppressed = bytearray(len(boxes))

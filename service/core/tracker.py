@@ -130,7 +130,14 @@ class Tracker:
         boxes = frame.boxes.take(drop_degenerate(frame.boxes))
         if frame.pose is not None:
             boxes = transform_boxes(boxes, frame.pose)
-        return boxes.take(nms(boxes, self._nms_iou, vertical=self.config.vertical_overlap))
+        return boxes.take(
+            nms(
+                boxes,
+                self._nms_iou,
+                vertical=self.config.vertical_overlap,
+                tie_order=self.config.tie_order,
+            )
+        )
 
     def _predict(self, tr: TrackTable, stamp: float) -> tuple[F64, F64]:
         dt = stamp - tr.t_update
@@ -284,4 +291,4 @@ class Tracker:
         return tracker
 
 
-__all__ = ["Tracker", "YAW"]
+__all__ = ["YAW", "Tracker"]

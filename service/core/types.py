@@ -60,7 +60,7 @@ class Tracks:
 
     def in_sensor_frame(self, pose: F64) -> Tracks:
         """These tracks expressed in the sensor frame whose sensor->world pose is given."""
-        inv = np.linalg.inv(pose)
+        inv = np.asarray(np.linalg.inv(pose), dtype=np.float64)
         boxes = transform_boxes(self.boxes, inv)
         vel = self.velocity @ inv[:3, :3].T
         return Tracks(
