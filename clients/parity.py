@@ -49,11 +49,15 @@ class ParityCounts:
 class ParityReport:
     overall: ParityCounts = field(default_factory=ParityCounts)
     per_class: dict[str, ParityCounts] = field(default_factory=lambda: defaultdict(ParityCounts))
+    per_scene: dict[str, ParityCounts] = field(default_factory=lambda: defaultdict(ParityCounts))
 
     def as_dict(self) -> dict[str, Any]:
+        worst = sorted(self.per_scene.items(), key=lambda kv: kv[1].mota)
         return {
             "overall": self.overall.as_dict(),
             "per_class": {k: v.as_dict() for k, v in sorted(self.per_class.items())},
+            "scenes": len(self.per_scene),
+            "worst_scenes": {k: v.as_dict() for k, v in worst[:5]},
         }
 
 
@@ -94,7 +98,7 @@ def compare(
             if prev is not None and prev != int(o_ids[c]):
                 ids += 1
             last[k] = int(o_ids[c])
-        for c_ in (counts, report.overall):
+        for c_ in (counts, report.overall, report.per_scene[scene]):
             c_.truth += len(t_ids)
             c_.matches += len(rows)
             c_.fn += len(t_ids) - len(rows)

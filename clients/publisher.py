@@ -174,15 +174,19 @@ class DetectionPublisher:
         stamp_ns: int | None = None,
         pose: npt.ArrayLike | None = None,
         key_frame: bool = True,
+        seq: int | None = None,
     ) -> int:
-        """Send one frame; returns its ``seq``. ``pose`` is the optional 4x4 sensor->world."""
+        """Send one frame; returns its ``seq``. ``pose`` is the optional 4x4 sensor->world;
+        ``seq`` (default: one more than the last) may skip ahead, never go back."""
         if isinstance(boxes, Boxes):
             arrays = boxes_to_arrays(boxes, self.classes)
         elif isinstance(boxes, BoxArrays):
             arrays = boxes
         else:
             arrays = box_list_to_arrays(boxes, self.classes)
-        return self.publish_arrays(arrays, stamp_ns=stamp_ns, pose=pose, key_frame=key_frame)
+        return self.publish_arrays(
+            arrays, stamp_ns=stamp_ns, pose=pose, key_frame=key_frame, seq=seq
+        )
 
     def publish_arrays(
         self,
@@ -191,10 +195,14 @@ class DetectionPublisher:
         stamp_ns: int | None = None,
         pose: npt.ArrayLike | None = None,
         key_frame: bool = True,
+        seq: int | None = None,
     ) -> int:
         if self._closed:
             raise RuntimeError("publisher is closed")
-        seq = self.next_seq
+        if seq is None:
+            seq = self.next_seq
+        elif seq < self.next_seq:
+            raise ValueError(f"seq {seq} is below the next one, {self.next_seq}: seq only grows")
         payload = encode_detection_frame(
             vehicle=self.vehicle,
             sensor=self.sensor,

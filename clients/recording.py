@@ -9,8 +9,8 @@ JSON lines, one object per received ``TrackFrame``::
          "velocity": [vx, vy, vz], "state": "confirmed", "hits": 9, "age": 11,
          "time_since_update": 0}, ...]}
 
-Ground truth uses the same layout (``tracks`` holding the true objects, ``state`` "truth"),
-so ``simpletrack plot`` reads both.
+Ground truth uses the same layout (``tracks`` holding the true objects, ``state`` "truth", or
+"ignored" for the mostly hidden ones the scorer ignores), so ``simpletrack plot`` reads both.
 """
 
 from __future__ import annotations
@@ -83,7 +83,11 @@ def truth_to_json(
     ids: npt.NDArray[np.int64],
     boxes: Boxes,
     class_names: Sequence[str],
+    ignore: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, Any]:
+    """The simulator's truth of one sensor frame; ``ignore`` marks objects the scorer ignores
+    (state "ignored", the others "truth")."""
+    hidden = [False] * len(ids) if ignore is None else ignore.tolist()
     return {
         "vehicle": vehicle,
         "sensor": sensor,
@@ -91,8 +95,10 @@ def truth_to_json(
         "stamp_ns": stamp_ns,
         "frame_id": "world",
         "tracks": [
-            {"id": i, "cls": class_names[c], "box": b, "state": "truth"}
-            for i, c, b in zip(ids.tolist(), boxes.cls.tolist(), _r(boxes.params), strict=True)
+            {"id": i, "cls": class_names[c], "box": b, "state": "ignored" if h else "truth"}
+            for i, c, b, h in zip(
+                ids.tolist(), boxes.cls.tolist(), _r(boxes.params), hidden, strict=True
+            )
         ],
     }
 

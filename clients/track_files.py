@@ -2,7 +2,8 @@
 project writes or reads.
 
 - JSON lines, one frame per line (what ``simpletrack record --format jsonl`` writes):
-  ``{"vehicle", "sensor", "seq", "stamp_ns", "tracks": [{"id", "cls", "box", "score", ...}]}``.
+  ``{"vehicle", "sensor", "seq", "stamp_ns", "tracks": [{"id", "cls", "box", "score", ...}]}``;
+  entries with ``"state": "ignored"`` (the demo's mostly hidden truth) are skipped.
 - JSON lines, one box per line (the reference's nuScenes files):
   ``{"scene", "frame", "cls", "id", "box", "score"}``; ``scene`` names the stream.
 - KITTI tracking results and labels (space separated, camera frame), ``DontCare`` skipped.
@@ -121,8 +122,8 @@ def read_jsonl(path: Path) -> dict[str, Sequence]:
                     frame = int(obj["seq"])
                     items = obj["tracks"]
                     target = streams[stream][frame]
-                    for t in items:
-                        target.append(_jsonl_box(t))
+                    # Truth the scorer ignores (mostly hidden) is not drawn either.
+                    target.extend(_jsonl_box(t) for t in items if t.get("state") != "ignored")
                 else:
                     stream = str(obj.get("scene", "-"))
                     streams[stream][int(obj["frame"])].append(_jsonl_box(obj))

@@ -240,6 +240,13 @@ def test_bad_ids_are_refused_before_anything_is_sent(service: ServiceProcess) ->
         DetectionPublisher.connect("a/b", "lidar", classes=CLASSES, options=options(service))
     with pytest.raises(ValueError, match="sensor id"):
         TrackSubscriber.connect(options=options(service), sensor="li dar")
+    with DetectionPublisher.connect(
+        "sq", "lidar", classes=CLASSES, options=options(service)
+    ) as pub:
+        assert pub.publish(cars(0), seq=5) == 5  # skipping ahead is fine
+        assert pub.publish(cars(1)) == 6
+        with pytest.raises(ValueError, match="seq only grows"):
+            pub.publish(cars(2), seq=6)
 
 
 def test_watch_shows_each_stream(

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from clients.demo import DemoOptions, FleetDemo
+from clients.demo import DemoOptions, FleetDemo, ServiceMode
 from clients.simulator import SimConfig
 from tests.service_helpers import ROOT
 
@@ -59,7 +59,10 @@ def test_ctrl_c_ends_the_demo_cleanly_with_its_summary() -> None:
         text=True,
         env=ENV,
     )
-    time.sleep(4.0)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()  # not a terminal: one line once the fleet is running
+    assert line.startswith("demo: running:"), line
+    time.sleep(1.5)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, out + err
@@ -69,7 +72,12 @@ def test_ctrl_c_ends_the_demo_cleanly_with_its_summary() -> None:
 
 def test_broken_frames_are_rejected_and_counted() -> None:
     demo = FleetDemo(
-        DemoOptions(sim=SimConfig(seed=2, vehicles=1), duration=2.0, inject_errors=0.3)
+        DemoOptions(
+            sim=SimConfig(seed=2, vehicles=1),
+            duration=2.0,
+            inject_errors=0.3,
+            service=ServiceMode.INPROCESS,
+        )
     )
     result = demo.run()
     rejected = result.stats.rejected

@@ -14,7 +14,7 @@ from service.settings import DEFAULT_LISTEN
 from service.zenoh_config import ZenohOptions, add_zenoh_args, open_session
 
 ZENOH_NOTE = (
-    "Zenoh: peer mode by default, connecting to a service on this machine "
+    "Zenoh: peer mode by default, connecting to a service on this machine\n"
     f"({DEFAULT_LISTEN[0]}); use --connect to reach another one, --mode client for routers."
 )
 

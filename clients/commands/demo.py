@@ -26,8 +26,8 @@ rate, end-to-end latency p50/p99 (sensor stamp to planner), active tracks, rejec
 and the running MOTA and ID switches. The summary is printed at the end, also when the output
 is not a terminal. Ctrl-C ends the demo cleanly (exit 0, with the summary).
 
-Exit code: 0 when tracks came back; 1 when the service failed or nothing was tracked;
-2 on bad arguments.
+Exit code: 0 when tracks came back (or on Ctrl-C); 1 when the service failed or nothing was
+tracked; 2 on bad arguments.
 
 examples:
   simpletrack demo                          # until Ctrl-C
@@ -35,7 +35,7 @@ examples:
   simpletrack demo --duration 10 --json out/demo.json --record out/demo
   simpletrack plot out/demo/tracks.jsonl --stream veh00/lidar \\
       --truth out/demo/truth.jsonl --out out/demo/veh00-lidar.png
-  simpletrack demo --service subprocess --metrics-port 9464   # curl localhost:9464/metrics
+  simpletrack demo --metrics-port 9464      # and: curl -s localhost:9464/metrics
   simpletrack demo --inject-errors 0.02     # 2 % broken frames: watch them get rejected
   simpletrack demo --service external --connect tcp/127.0.0.1:7447 --prefix fleet
 """
@@ -57,9 +57,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--rate", type=float, default=10.0, help="frames per second per sensor (10)")
     p.add_argument(
         "--service",
-        choices=("inprocess", "subprocess", "external"),
-        help="run the service in this process (default), as `simpletrack serve` in a child "
-        "process, or use a running one reached with --connect",
+        choices=("subprocess", "inprocess", "external"),
+        help="run the service as `simpletrack serve` in a child process (default), in this "
+        "process (faster start; shares the GIL, so latency tails grow), or use a running one "
+        "reached with --connect",
     )
     p.add_argument("--prefix", default="fleet", help="key prefix (default fleet)")
     p.add_argument(
@@ -100,7 +101,7 @@ def _options(args: argparse.Namespace) -> object:
         raise UserError(f"--{field} {first['input']!r}: {first['msg']}") from None
     mode = ServiceMode(args.service) if args.service else None
     if mode is None:
-        mode = ServiceMode.EXTERNAL if args.zenoh_connect else ServiceMode.INPROCESS
+        mode = ServiceMode.EXTERNAL if args.zenoh_connect else ServiceMode.SUBPROCESS
     client = None
     listen = None
     if mode is ServiceMode.EXTERNAL:
@@ -148,11 +149,20 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, demo.request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     use_live = console.is_terminal and not args.no_live
     live = Live(console=console, auto_refresh=False, transient=True) if use_live else None
-    last_plain = [0.0]
+    last_plain = [-1.0]
 
     def on_tick(result: DemoResult) -> None:
         if live is not None:
             live.update(live_view(result, options), refresh=True)
+        elif last_plain[0] < 0:
+            last_plain[0] = 0.0
+            sim = options.sim
+            print(
+                f"demo: running: {sim.vehicles} vehicles x {len(sim.sensors)} sensors publishing "
+                f"to the service on {result.endpoint}; "
+                + (f"{options.duration:g} s" if options.duration else "Ctrl-C to stop"),
+                flush=True,
+            )
         elif result.elapsed - last_plain[0] >= 5.0:
             # Not a terminal: a progress line every 5 s instead of the live table.
             last_plain[0] = result.elapsed
@@ -186,4 +196,6 @@ def run(args: argparse.Namespace) -> int:
         args.json.write_text(json.dumps(summary_json(result, options), indent=1) + "\n")
         print(f"  wrote {args.json}")
     sys.stdout.flush()
+    if result.stopped_by == "interrupted":
+        return 0  # Ctrl-C is the documented way to end it
     return 0 if result.stats.tracked > 0 else 1

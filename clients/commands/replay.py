@@ -307,8 +307,7 @@ def run(args: argparse.Namespace) -> int:
                     if not answers.wait_below(sent, args.window, args.answer_timeout):
                         outcome = "service stopped answering"
                         break
-                    pub.next_seq = f.index
-                    pub.publish(f.boxes, stamp_ns=base_ns + round(f.stamp * 1e9))
+                    pub.publish(f.boxes, stamp_ns=base_ns + round(f.stamp * 1e9), seq=f.index)
                     sent += 1
                     advance(1)
                 if outcome != "done":
@@ -335,6 +334,11 @@ def run(args: argparse.Namespace) -> int:
     )
     for reason, n in sorted(answers.errors.items()):
         print(f"  refused {n} x {reason}")
+    if answers.errors.keys() & {"seq_not_increasing", "out_of_order", "duplicate_seq"}:
+        print(
+            "  hint: the service still holds these streams (an earlier replay?): "
+            "give another --vehicle, or restart the service"
+        )
     sys.stdout.flush()
     if outcome == "interrupted":
         return 130

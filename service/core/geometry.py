@@ -32,6 +32,7 @@ __all__ = [
     "bev_hull_area",
     "bev_intersection_area",
     "distance_matrix",
+    "distance_pairs",
     "fold_yaw",
     "giou_3d",
     "giou_bev",
@@ -436,3 +437,85 @@ def distance_matrix(
         Metric.IOU_BEV: iou_bev,
     }[metric]
     return np.asarray(1.0 - overlap(dets, preds, vertical=vertical), dtype=np.float64)
+
+
+def _overlap_pairs(
+    pa: F64,
+    pb: F64,
+    ia: I64,
+    ib: I64,
+    *,
+    three_d: bool,
+    generalized: bool,
+    vertical: VerticalOverlap,
+) -> F64:
+    """IoU or GIoU of the listed pairs only: the same arithmetic as ``_overlap`` per element."""
+    a, b = pa[ia], pb[ib]
+    reach = (np.hypot(a[:, L], a[:, W]) + np.hypot(b[:, L], b[:, W])) / 2
+    d2 = np.square(a[:, X] - b[:, X]) + np.square(a[:, Y] - b[:, Y])
+    near = np.flatnonzero(d2 <= reach * reach * (1.0 + _GATE_SLACK))
+    inter = np.zeros(ia.size)
+    if near.size:
+        area = _intersection(a[near], b[near])
+        inter[near] = np.clip(area, 0.0, np.minimum(_areas(a[near]), _areas(b[near])))
+    size_a, size_b = _areas(a), _areas(b)
+    overlap_h, union_h = _vertical(pa, pb, vertical, ia, ib) if three_d else (None, None)
+    if three_d and overlap_h is not None:
+        inter = inter * overlap_h
+        size_a, size_b = size_a * a[:, H], size_b * b[:, H]
+    union = size_a + size_b - inter
+    reference_3d = three_d and vertical is VerticalOverlap.REFERENCE
+    if reference_3d and not generalized:
+        return np.asarray(inter / (union + _REFERENCE_EPS), dtype=np.float64)
+    iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    if not generalized:
+        return iou
+    enclosing = _hull(a, b)
+    if three_d and union_h is not None:
+        enclosing = enclosing * union_h
+    if not reference_3d:
+        np.maximum(enclosing, union, out=enclosing)
+    giou = np.divide(union, enclosing, out=np.ones_like(union), where=enclosing > 0)
+    giou -= 1.0
+    # Pairs that cannot intersect have IoU exactly 0, as in the dense path.
+    giou[near] += iou[near]
+    return giou
+
+
+def distance_pairs(
+    metric: Metric,
+    dets: npt.ArrayLike,
+    preds: npt.ArrayLike,
+    det_index: npt.ArrayLike,
+    pred_index: npt.ArrayLike,
+    *,
+    vertical: VerticalOverlap = VerticalOverlap.EXACT,
+    innovation: npt.ArrayLike | None = None,
+) -> F64:
+    """Distances of the listed (det, pred) pairs: ``distance_matrix(...)[det_index, pred_index]``
+    without computing the rest (e.g. only same-class pairs, all classes in one call)."""
+    metric = Metric(metric)
+    pa, pb = _params(dets, "dets"), _params(preds, "preds")
+    ia = np.asarray(det_index, dtype=np.int64).reshape(-1)
+    ib = np.asarray(pred_index, dtype=np.int64).reshape(-1)
+    if ia.size != ib.size:
+        raise ValueError(f"{ia.size} det indices but {ib.size} pred indices")
+    if ia.size == 0:
+        return np.zeros(0)
+    if metric is Metric.L2:
+        d = pa[ia, X : Z + 1] - pb[ib, X : Z + 1]
+        return np.asarray(np.sqrt(np.einsum("pk,pk->p", d, d)), dtype=np.float64)
+    if metric is Metric.MAHALANOBIS:
+        if innovation is None:
+            raise ValueError("the mahalanobis metric needs the tracks' innovation covariances")
+        s_inv = np.linalg.inv(np.asarray(innovation, dtype=np.float64))
+        d = pa[ia] - pb[ib]
+        d[:, YAW] = fold_yaw(d[:, YAW])
+        q = np.einsum("pi,pi->p", np.einsum("pj,pij->pi", d, s_inv[ib]), d)
+        return np.asarray(np.sqrt(np.maximum(q, 0.0)), dtype=np.float64)
+    three_d = metric in (Metric.GIOU_3D, Metric.IOU_3D)
+    generalized = metric in (Metric.GIOU_3D, Metric.GIOU_BEV)
+    overlap = _overlap_pairs(
+        pa, pb, ia, ib, three_d=three_d, generalized=generalized, vertical=vertical
+    )
+    return np.asarray(1.0 - overlap, dtype=np.float64)

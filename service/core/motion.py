@@ -16,8 +16,8 @@ from service.core.config import KalmanConfig
 
 DIM_X = 10
 DIM_Z = 7
-_VEL = np.array([7, 8, 9])
-_POS = np.array([0, 1, 2])
+_VEL = slice(7, 10)
+_POS = slice(0, 3)
 _H = np.eye(DIM_Z, DIM_X)
 
 
@@ -30,7 +30,7 @@ def _wrap_once(a: F64) -> F64:
 def transition(dt: F64) -> F64:
     """F(dt) for each track: (T, 10, 10)."""
     f = np.broadcast_to(np.eye(DIM_X), (dt.shape[0], DIM_X, DIM_X)).copy()
-    f[:, _POS, _VEL] = dt[:, None]
+    f[:, [0, 1, 2], [7, 8, 9]] = dt[:, None]
     return f
 
 
@@ -52,10 +52,17 @@ class KalmanFilter:
         return x, np.broadcast_to(self.p0, (n, DIM_X, DIM_X)).copy()
 
     def predict(self, x: F64, p: F64, dt: F64) -> tuple[F64, F64]:
-        """One step of dt (per track) with one Q: x = F x, P = F P F^T + Q."""
-        f = transition(dt)
-        x_pred = np.einsum("tij,tj->ti", f, x)
-        p_pred = f @ p @ f.transpose(0, 2, 1) + self.q
+        """One step of dt (per track) with one Q: x = F x, P = F P F^T + Q.
+
+        F = I + dt E (E copies velocities onto positions), so F P F^T is two row/column
+        additions rather than two dense (T, 10, 10) products."""
+        x_pred = x.copy()
+        x_pred[:, _POS] += x[:, _VEL] * dt[:, None]
+        fp = p.copy()
+        fp[:, _POS, :] += p[:, _VEL, :] * dt[:, None, None]
+        p_pred = fp.copy()
+        p_pred[:, :, _POS] += fp[:, :, _VEL] * dt[:, None, None]
+        p_pred += self.q
         return x_pred, p_pred
 
     def innovation(self, p: F64) -> F64:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from typing import Any
 
 import msgpack
@@ -49,25 +49,25 @@ class TrackTable:
 
     def take(self, index: npt.ArrayLike) -> TrackTable:
         idx = np.asarray(index)
-        return TrackTable(**{f.name: getattr(self, f.name)[idx] for f in fields(self)})
+        return TrackTable(*(getattr(self, name)[idx] for name in _FIELDS))
 
     def concat(self, other: TrackTable) -> TrackTable:
         return TrackTable(
-            **{
-                f.name: np.concatenate([getattr(self, f.name), getattr(other, f.name)])
-                for f in fields(self)
-            }
+            *(np.concatenate([getattr(self, name), getattr(other, name)]) for name in _FIELDS)
         )
 
-    def with_(self, **changes: Any) -> TrackTable:
-        return replace(self, **changes)
-
     def to_msgpack_obj(self) -> dict[str, Any]:
-        return {f.name: _pack_array(getattr(self, f.name)) for f in fields(self)}
+        return {name: _pack_array(getattr(self, name)) for name in _FIELDS}
 
     @classmethod
     def from_msgpack_obj(cls, obj: dict[str, Any]) -> TrackTable:
-        return cls(**{f.name: _unpack_array(obj[f.name]) for f in fields(cls)})
+        missing = [name for name in _FIELDS if name not in obj]
+        if missing:
+            raise ValueError(f"tracker state lacks {', '.join(missing)}")
+        return cls(*(_unpack_array(obj[name]) for name in _FIELDS))
+
+
+_FIELDS = tuple(f.name for f in fields(TrackTable))
 
 
 def _pack_array(a: npt.NDArray[Any]) -> dict[str, Any]:

@@ -21,6 +21,7 @@ from service.core.state import TrackTable, pack, unpack
 from service.core.types import Frame, Tracks
 
 STATE_FORMAT = 1
+_METRICS = tuple(Metric)
 I64 = npt.NDArray[np.int64]
 
 
@@ -36,6 +37,12 @@ class Tracker:
         self._score_high = np.array([config.for_code(c).score_high for c in codes])
         self._min_hits = np.array([config.for_code(c).min_hits for c in codes], dtype=np.int64)
         self._max_age = np.array([config.for_code(c).max_age for c in codes], dtype=np.int64)
+        self._score_low = np.array([config.for_code(c).score_low for c in codes])
+        self._two_stage = np.array([config.for_code(c).two_stage for c in codes], dtype=bool)
+        self._stage2_max = np.array([config.for_code(c).stage2_max_distance for c in codes])
+        self._metric_code = np.array(
+            [_METRICS.index(config.for_code(c).metric) for c in codes], dtype=np.int64
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -145,25 +152,50 @@ class Tracker:
             return self._kf.predict(tr.x, tr.p, dt)
         return self._cv.predict(tr.x, dt), tr.p
 
-    def _distance(self, metric: Metric, dets: F64, preds: F64, p_pred: F64) -> F64:
-        innovation = self._kf.innovation(p_pred) if metric is Metric.MAHALANOBIS else None
-        return geometry.distance_matrix(
-            metric, dets, preds, vertical=self.config.vertical_overlap, innovation=innovation
-        )
+    def _pair_distances(
+        self,
+        d_params: F64,
+        d_cls: npt.NDArray[np.int32],
+        t_cls: npt.NDArray[np.int32],
+        pred: F64,
+        p_pred: F64,
+    ) -> tuple[I64, I64, F64]:
+        """Distances of every same-class (detection, track) pair, all classes in one call per
+        metric; pairs in row-major order (detections in the given order, tracks ascending)."""
+        ia, ib = np.nonzero(d_cls[:, None] == t_cls[None, :])
+        dist = np.empty(ia.size)
+        pair_metric = self._metric_code[d_cls[ia]]
+        for m in np.unique(pair_metric).tolist():
+            metric = _METRICS[m]
+            sel = np.flatnonzero(pair_metric == m)
+            innovation = self._kf.innovation(p_pred) if metric is Metric.MAHALANOBIS else None
+            dist[sel] = geometry.distance_pairs(
+                metric,
+                d_params,
+                pred,
+                ia[sel],
+                ib[sel],
+                vertical=self.config.vertical_overlap,
+                innovation=innovation,
+            )
+        return ia.astype(np.int64), ib.astype(np.int64), dist
 
     def _stage1(
         self, dets: Boxes, cand: I64, trk_cls: npt.NDArray[np.int32], pred: F64, p_pred: F64
     ) -> tuple[I64, I64, I64]:
         """Class by class (a detection never matches a track of another class)."""
+        d_cls = dets.cls[cand]
+        ia, _, dist = self._pair_distances(dets.params[cand], d_cls, trk_cls, pred, p_pred)
+        pair_cls = d_cls[ia]
         md: list[I64] = []
         mt: list[I64] = []
         um: list[I64] = []
-        for code in np.unique(np.concatenate([dets.cls[cand], trk_cls])).tolist():
+        for code in np.unique(np.concatenate([d_cls, trk_cls])).tolist():
             c = self.config.for_code(code)
-            d_idx = cand[dets.cls[cand] == code]
+            d_idx = cand[d_cls == code]
             t_idx = np.flatnonzero(trk_cls == code)
-            dist = self._distance(c.metric, dets.params[d_idx], pred[t_idx], p_pred[t_idx])
-            a: Assignment = assign(dist, c.max_distance, c.matcher)
+            block = dist[pair_cls == code].reshape(d_idx.size, t_idx.size)
+            a: Assignment = assign(block, c.max_distance, c.matcher)
             md.append(d_idx[a.det])
             mt.append(t_idx[a.track])
             um.append(d_idx[a.unmatched_dets])
@@ -185,20 +217,21 @@ class Tracker:
     ) -> I64:
         """Unmatched tracks that some low-score detection agrees with (any detection over
         ``score_low``, used in stage 1 or not, as the reference does)."""
-        out: list[I64] = []
-        unmatched = update == UpdateKind.COASTED
-        for code in np.unique(trk_cls[unmatched]).tolist():
-            c = self.config.for_code(code)
-            if key and not c.two_stage:
-                continue
-            low = c.score_low if key else self.config.non_key.score_low
-            d_idx = np.flatnonzero((dets.cls == code) & (dets.score > low))
-            t_idx = np.flatnonzero(unmatched & (trk_cls == code))
-            if d_idx.size == 0:
-                continue
-            dist = self._distance(c.metric, dets.params[d_idx], pred[t_idx], p_pred[t_idx])
-            out.append(t_idx[(dist <= c.stage2_max_distance).any(axis=0)])
-        return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+        eligible = update == UpdateKind.COASTED
+        if key:
+            eligible &= self._two_stage[trk_cls]
+            low = self._score_low[dets.cls]
+        else:
+            low = np.full(len(dets), self.config.non_key.score_low)
+        t_idx = np.flatnonzero(eligible)
+        d_idx = np.flatnonzero(dets.score > low)
+        if t_idx.size == 0 or d_idx.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        _, ib, dist = self._pair_distances(
+            dets.params[d_idx], dets.cls[d_idx], trk_cls[t_idx], pred[t_idx], p_pred[t_idx]
+        )
+        agree = dist <= self._stage2_max[trk_cls[t_idx[ib]]]
+        return np.unique(t_idx[ib[agree]]).astype(np.int64)
 
     def _transition(
         self,
