@@ -73,18 +73,7 @@ def check_name(kind: str, value: str) -> str:
 
 def boxes_to_arrays(boxes: Boxes, classes: Sequence[str]) -> BoxArrays:
     """Core ``Boxes`` (codes index ``classes``) as wire columns."""
-    if len(boxes) and int(boxes.cls.max()) >= len(classes):
-        raise ValueError(f"class code {int(boxes.cls.max())} has no name in {tuple(classes)}")
-    p = boxes.params
-    return BoxArrays(
-        classes=tuple(classes),
-        class_index=boxes.cls.astype(np.int32),
-        center=p[:, 0:3].astype(np.float32),
-        size=p[:, 4:7].astype(np.float32),
-        yaw=p[:, 3].astype(np.float32),
-        score=boxes.score.astype(np.float32),
-        velocity=None if boxes.velocity is None else boxes.velocity.astype(np.float32),
-    )
+    return BoxArrays.from_boxes(boxes, classes)
 
 
 def box_list_to_arrays(boxes: Sequence[Box], classes: Sequence[str]) -> BoxArrays:
@@ -104,7 +93,7 @@ def box_list_to_arrays(boxes: Sequence[Box], classes: Sequence[str]) -> BoxArray
         center=np.array([(b.x, b.y, b.z) for b in boxes], dtype=np.float32).reshape(n, 3),
         size=np.array([(b.l, b.w, b.h) for b in boxes], dtype=np.float32).reshape(n, 3),
         yaw=np.array([b.yaw for b in boxes], dtype=np.float32),
-        score=np.array([b.score for b in boxes], dtype=np.float32),
+        score=np.array([b.score for b in boxes], dtype=np.float64),
         velocity=np.array([(b.vx, b.vy) for b in boxes], dtype=np.float32).reshape(n, 2)
         if with_velocity
         else None,

@@ -68,7 +68,7 @@ class _Reject(Exception):
 
 
 def pack(obj: Any) -> bytes:
-    return msgpack.packb(obj, use_bin_type=True)  # type: ignore[no-any-return]
+    return bytes(msgpack.packb(obj, use_bin_type=True))
 
 
 def encode(model: WireModel) -> bytes:

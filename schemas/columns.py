@@ -6,11 +6,14 @@ column of width k occupies bytes ``[i*k*itemsize, (i+1)*k*itemsize)``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import JsonValue
+
+from service.core.boxes import Boxes
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -39,12 +42,17 @@ def _f32(name: str, width: int, optional: bool = False) -> ColumnSpec:
     return ColumnSpec(name, "<f4", width, optional=optional, finite=True)
 
 
+# Scores are float64: evaluations threshold on exact score values (KITTI's sAMOTA uses the
+# scores themselves as thresholds), so float32 rounding on the wire would change results.
+_SCORE = ColumnSpec("score", "<f8", 1, finite=True)
+
+
 DETECTION_COLUMNS: tuple[ColumnSpec, ...] = (
     ColumnSpec("class_index", "<i4", 1),
     _f32("center", 3),
     _f32("size", 3),
     _f32("yaw", 1),
-    _f32("score", 1),
+    _SCORE,
     _f32("velocity", 2, optional=True),
 )
 
@@ -54,7 +62,7 @@ TRACK_COLUMNS: tuple[ColumnSpec, ...] = (
     _f32("center", 3),
     _f32("size", 3),
     _f32("yaw", 1),
-    _f32("score", 1),
+    _SCORE,
     _f32("velocity", 3),
     ColumnSpec("state", "<i4", 1),
     ColumnSpec("hits", "<i4", 1),
@@ -92,11 +100,27 @@ class BoxArrays:
     center: F32  # (N, 3) x, y, z of the box centre
     size: F32  # (N, 3) l, w, h
     yaw: F32  # (N,)
-    score: F32  # (N,)
+    score: F64  # (N,)
     velocity: F32 | None = None  # (N, 2) vx, vy
 
     def __len__(self) -> int:
         return int(self.center.shape[0])
+
+    @classmethod
+    def from_boxes(cls, boxes: Boxes, classes: Sequence[str]) -> BoxArrays:
+        """Core ``Boxes`` (codes index ``classes``) in wire precision."""
+        if len(boxes) and int(boxes.cls.max()) >= len(classes):
+            raise ValueError(f"class code {int(boxes.cls.max())} has no name in {tuple(classes)}")
+        p = boxes.params
+        return cls(
+            classes=tuple(classes),
+            class_index=boxes.cls.astype(np.int32),
+            center=p[:, 0:3].astype(np.float32),
+            size=p[:, 4:7].astype(np.float32),
+            yaw=p[:, 3].astype(np.float32),
+            score=boxes.score.astype(np.float64),
+            velocity=None if boxes.velocity is None else boxes.velocity.astype(np.float32),
+        )
 
     def class_names(self) -> list[str]:
         return [self.classes[i] for i in self.class_index.tolist()]
@@ -112,7 +136,7 @@ class TrackArrays:
     center: F32
     size: F32
     yaw: F32
-    score: F32
+    score: F64
     velocity: F32  # (N, 3) vx, vy, vz
     state: I32
     hits: I32

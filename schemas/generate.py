@@ -62,7 +62,7 @@ def _boxes(n: int, velocity: bool = False) -> BoxArrays:
         center=np.stack([10.0 + i, -2.5 * i + 0.0, 0.75 + 0 * i], axis=1).astype(np.float32),
         size=np.tile(_f32([4.5, 1.75, 1.5]), (n, 1)),
         yaw=(0.25 * i).astype(np.float32),
-        score=(0.875 - 0.125 * i).astype(np.float32),
+        score=(0.875 - 0.125 * i).astype(np.float64),
         velocity=np.stack([i, 0.0 - i], axis=1).astype(np.float32) if velocity else None,
     )
 
@@ -100,7 +100,7 @@ def _tracks() -> bytes:
         center=_f32([[10.0, 0.0, 0.75], [11.0, -2.5, 0.75]]),
         size=_f32([[4.5, 1.75, 1.5], [0.75, 0.5, 1.75]]),
         yaw=_f32([0.0, 0.25]),
-        score=_f32([0.875, 0.5]),
+        score=np.array([0.875, 0.5]),
         velocity=_f32([[5.0, 0.0, 0.0], [1.0, -1.0, 0.0]]),
         state=np.array([1, 0], dtype=np.int32),
         hits=np.array([12, 1], dtype=np.int32),

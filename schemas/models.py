@@ -58,7 +58,7 @@ class BoxColumns(WireModel):
     center: bytes = _column(DETECTION_SPECS["center"], "float32 x, y, z in metres")
     size: bytes = _column(DETECTION_SPECS["size"], "float32 l, w, h in metres, all > 0")
     yaw: bytes = _column(DETECTION_SPECS["yaw"], "float32 radians about +z")
-    score: bytes = _column(DETECTION_SPECS["score"], "float32 detector confidence")
+    score: bytes = _column(DETECTION_SPECS["score"], "float64 detector confidence")
     velocity: bytes | None = _column(DETECTION_SPECS["velocity"], "float32 vx, vy in m/s")
 
     @classmethod
@@ -110,7 +110,7 @@ class TrackColumns(WireModel):
     center: bytes = _column(TRACK_SPECS["center"], "float32 x, y, z in metres")
     size: bytes = _column(TRACK_SPECS["size"], "float32 l, w, h in metres")
     yaw: bytes = _column(TRACK_SPECS["yaw"], "float32 radians about +z")
-    score: bytes = _column(TRACK_SPECS["score"], "float32 track score")
+    score: bytes = _column(TRACK_SPECS["score"], "float64 track score")
     velocity: bytes = _column(TRACK_SPECS["velocity"], "float32 vx, vy, vz in m/s")
     state: bytes = _column(TRACK_SPECS["state"], "int32 0 tentative, 1 confirmed, 2 coasting")
     hits: bytes = _column(TRACK_SPECS["hits"], "int32 frames with a detection update")

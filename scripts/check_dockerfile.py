@@ -427,7 +427,11 @@ def smoke_run(df: Dockerfile, env: dict[str, str], work: Path, grace_s: float = 
         deadline = time.monotonic() + flags["start-period"] + flags["retries"] * flags["interval"]
         while True:
             rc = subprocess.call(
-                ["/bin/sh", "-c", health], env=run_env, timeout=flags["timeout"] + 5
+                ["/bin/sh", "-c", health],
+                env=run_env,
+                timeout=flags["timeout"] + 5,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
             )
             if rc == 0:
                 break
@@ -489,7 +493,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         t0 = time.monotonic()
         env = build(df, work, work / "build.log")
-        print(f"build: ok in {time.monotonic() - t0:.0f} s")
+        venv = Path(env.get("VENV", ""))
+        size = sum(p.stat().st_size for p in venv.rglob("*") if p.is_file()) if venv.name else 0
+        print(f"build: ok in {time.monotonic() - t0:.0f} s; {venv.name or '?'} is {size >> 20} MiB")
         smoke_run(df, env, work)
         print("run: ok")
     finally:

@@ -8,8 +8,15 @@ if [ ! -x .venv/bin/python ]; then
 fi
 stamp=.venv/.installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  .venv/bin/python -m pip install --quiet --upgrade pip
-  .venv/bin/python -m pip install --quiet -e ".[test,plot]"
+  # pip and setuptools are chatty (build warnings); show their output only when they fail.
+  log=$(mktemp)
+  if ! { .venv/bin/python -m pip install --quiet --upgrade pip &&
+         .venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[test,plot]"; } >"$log" 2>&1; then
+    cat "$log" >&2
+    echo "setup: installing the package failed (output above)" >&2
+    exit 1
+  fi
+  rm -f "$log"
   touch "$stamp"
 fi
 # System services used by the end-to-end tests (Prometheus); optional outside CI.

@@ -55,4 +55,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Through the installed module, so `python -m service.cli` shares one UserError class.
+    from service.cli import main as installed_main
+
+    sys.exit(installed_main())

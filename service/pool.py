@@ -154,7 +154,7 @@ def tracks_to_wire(tracks: Tracks, id_base: int, classes: tuple[str, ...]) -> Tr
         center=p[:, 0:3].astype(np.float32),
         size=p[:, 4:7].astype(np.float32),
         yaw=p[:, 3].astype(np.float32),
-        score=tracks.boxes.score.astype(np.float32),
+        score=tracks.boxes.score,
         velocity=tracks.velocity.astype(np.float32),
         state=state,
         hits=tracks.hits.astype(np.int32),

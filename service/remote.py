@@ -42,20 +42,6 @@ class RemoteError(RuntimeError):
     """The service refused a frame, or did not answer in time."""
 
 
-def frame_to_wire(frame: Frame, classes: Sequence[str]) -> BoxArrays:
-    b = frame.boxes
-    p = b.params
-    return BoxArrays(
-        classes=tuple(classes),
-        class_index=b.cls.astype(np.int32),
-        center=p[:, 0:3].astype(np.float32),
-        size=p[:, 4:7].astype(np.float32),
-        yaw=p[:, 3].astype(np.float32),
-        score=b.score.astype(np.float32),
-        velocity=None if b.velocity is None else b.velocity.astype(np.float32),
-    )
-
-
 def wire_to_tracks(t: TrackArrays) -> Tracks:
     params = np.concatenate([t.center, t.yaw[:, None], t.size], axis=1).astype(np.float64)
     state = np.where(
@@ -138,7 +124,7 @@ def track_sequence_over_zenoh(
                     seq=k,
                     stamp_ns=STAMP_ORIGIN_NS + round(frame.stamp * 1e9),
                     frame_id="sensor",
-                    boxes=frame_to_wire(frame, classes),
+                    boxes=BoxArrays.from_boxes(frame.boxes, classes),
                     pose=frame.pose,
                     key_frame=frame.key_frame,
                 )

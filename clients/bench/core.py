@@ -40,6 +40,7 @@ GOAL_SPEEDUP = 50.0
 DEFAULT_SIZES = (10, 50, 100, 200, 500, 1000)
 SYNTHETIC_PERIOD_S = 0.5  # the nuscenes preset's frame period
 TAIL_FROM = 100  # the growth exponent "at scale" is fitted from this many boxes up
+MIN_TIMED = 3  # frames timed per sweep size however slow they are
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,33 +115,46 @@ def synthetic_stream(n: int, frames: int, seed: int = 0) -> list[Frame]:
 
 # ----------------------------------------------------------------------------- timing
 def time_streams(
-    config: TrackerConfig, streams: Sequence[Sequence[Frame]], skip: int = 0
+    config: TrackerConfig,
+    streams: Sequence[Sequence[Frame]],
+    skip: int = 0,
+    budget_s: float = math.inf,
 ) -> list[float]:
     """Seconds per ``Tracker.step`` (a fresh tracker per stream); the first ``skip`` frames of
-    each stream are stepped but not timed (the sweep's ramp-up to ``n`` tracks)."""
+    each stream are stepped but not timed (the sweep's ramp-up to ``n`` tracks). Stops early,
+    after at least ``MIN_TIMED`` frames, once the timed steps exceed ``budget_s``."""
     clock = time.perf_counter_ns
     out: list[float] = []
+    spent = 0.0
     for frames in streams:
         tracker = Tracker(config)
         for k, frame in enumerate(frames):
             t0 = clock()
             tracker.step(frame)
-            dt = clock() - t0
+            dt = (clock() - t0) * 1e-9
             if k >= skip:
-                out.append(dt * 1e-9)
+                out.append(dt)
+                spent += dt
+                if spent > budget_s and len(out) >= MIN_TIMED:
+                    return out
     return out
 
 
 def stage_breakdown(
-    config: TrackerConfig, streams: Sequence[Sequence[Frame]], skip: int = 0
+    config: TrackerConfig,
+    streams: Sequence[Sequence[Frame]],
+    skip: int = 0,
+    frames_max: int | None = None,
 ) -> dict[str, Any]:
-    """Seconds and calls per stage over the timed frames, with the shims installed."""
+    """Seconds and calls per stage over the timed frames (at most ``frames_max`` per stream),
+    with the shims installed."""
     clock = time.perf_counter_ns
     timed_total = 0.0
+    cap = None if frames_max is None else skip + frames_max
     with StageTimer() as timer:
         for frames in streams:
             tracker = Tracker(config)
-            for k, frame in enumerate(frames):
+            for k, frame in enumerate(frames[:cap]):
                 if k < skip:  # ramp-up frame: stepped, then its stage time is rolled back
                     before = (dict(timer.seconds), dict(timer.calls))
                     tracker.step(frame)
@@ -149,7 +163,7 @@ def stage_breakdown(
                 t0 = clock()
                 tracker.step(frame)
                 timed_total += (clock() - t0) * 1e-9
-    frames = sum(max(len(s) - skip, 0) for s in streams)
+    frames = sum(max(len(s[:cap]) - skip, 0) for s in streams)
     seconds = dict(timer.seconds)
     seconds[OTHER] = max(timed_total - sum(seconds.values()), 0.0)
     share = {k: (v / timed_total if timed_total > 0 else 0.0) for k, v in seconds.items()}
@@ -187,20 +201,23 @@ def bench_load(load: Load) -> dict[str, Any]:
     }
 
 
-def sweep(sizes: Sequence[int], frames: int, ramp: int = 2) -> dict[str, Any]:
+def sweep(
+    sizes: Sequence[int], frames: int, budget_s: float = 5.0, ramp: int = 2
+) -> dict[str, Any]:
     """Per-frame time against boxes per frame (= live tracks), one class (the worst case for
-    the cost matrix: every box against every track)."""
+    the cost matrix: every box against every track). Each size gets ``frames`` timed frames,
+    fewer (at least MIN_TIMED) when they take over ``budget_s``."""
     config = preset("nuscenes")
+    warm_up(config, synthetic_stream(10, 5))
     points = []
     for n in sizes:
         stream = synthetic_stream(n, frames + ramp, seed=n)
-        warm_up(config, stream)
-        lat = time_streams(config, [stream], skip=ramp)
+        lat = time_streams(config, [stream], skip=ramp, budget_s=budget_s)
         points.append(
             {
                 "boxes": n,
                 "latency": summary_ms(lat),
-                "stages": stage_breakdown(config, [stream], skip=ramp),
+                "stages": stage_breakdown(config, [stream], skip=ramp, frames_max=len(lat)),
             }
         )
     xs = [p["boxes"] for p in points]

@@ -7,7 +7,7 @@ import argparse
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -139,8 +139,20 @@ def _config(name: str, classes: Sequence[str]) -> TrackerConfig:
     return config
 
 
+Tracking = Callable[[str, Sequence[SequenceFrame], TrackerConfig], list[Tracks]]
+
+
+def _local(seq: str, frames: Sequence[SequenceFrame], config: TrackerConfig) -> list[Tracks]:
+    return track_sequence(frames, config)
+
+
 def track_all(
-    data: Path, seqs: Sequence[str], classes: Sequence[str], config: TrackerConfig, out: Path
+    data: Path,
+    seqs: Sequence[str],
+    classes: Sequence[str],
+    config: TrackerConfig,
+    out: Path,
+    tracking: Tracking = _local,
 ) -> Path:
     """Track every sequence and write ``out/data_0/NNNN.txt``; returns that folder."""
     # Results carry KITTI type names whatever the config calls its classes.
@@ -152,7 +164,7 @@ def track_all(
             frames = load_sequence(data, seq, config, classes)
         except (FileNotFoundError, ValueError) as exc:
             raise UserError(str(exc)) from None
-        outputs = track_sequence(frames, config)
+        outputs = tracking(seq, frames, config)
         rows = ResultRows.concat(
             tracks_to_rows(f.index, t.ids, t.boxes, names)
             for f, t in zip(frames, outputs, strict=True)
@@ -192,6 +204,28 @@ def _json_ready(metrics: dict[str, dict[str, float]]) -> dict[str, dict[str, flo
     }
 
 
+def _track_over_zenoh(
+    args: argparse.Namespace, seqs: Sequence[str], classes: Sequence[str], config: TrackerConfig
+) -> Path:
+    """The same tracking through a real ``simpletrack serve`` (spawned on a loopback port with
+    lossless backpressure), one sensor stream per sequence."""
+    from service.remote import RemoteError, spawn_service, track_sequence_over_zenoh
+
+    def remote(endpoint: str) -> Tracking:
+        def run_one(seq: str, frames: Sequence[SequenceFrame], cfg: TrackerConfig) -> list[Tracks]:
+            plain = [Frame(boxes=f.boxes, stamp=f.stamp) for f in frames]
+            return track_sequence_over_zenoh(plain, cfg, connect=endpoint, sensor=f"kitti{seq}")
+
+        return run_one
+
+    try:
+        with spawn_service(args.preset) as endpoint:
+            print(f"tracking through a service at {endpoint}")
+            return track_all(args.data, seqs, classes, config, args.results_dir, remote(endpoint))
+    except RemoteError as exc:
+        raise UserError(f"zenoh transport: {exc}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     seqs = _split(args.seqs, "seqs")
     classes = _classes(args.classes)
@@ -199,8 +233,6 @@ def run(args: argparse.Namespace) -> int:
     missing = [s for s in seqs if not (labels / f"{s}.txt").is_file()]
     if missing:
         raise UserError(f"no labels for sequence(s) {', '.join(missing)} in {labels}")
-    if args.transport == "zenoh":
-        raise UserError("--transport zenoh is not available yet; use --transport local")
 
     started = time.perf_counter()
     if args.results is not None:
@@ -215,7 +247,10 @@ def run(args: argparse.Namespace) -> int:
             calib = args.data / "calib" / f"{seq}.txt"
             if not calib.is_file():
                 raise UserError(f"no calibration for sequence {seq}: {calib}")
-        results = track_all(args.data, seqs, classes, config, args.results_dir)
+        if args.transport == "zenoh":
+            results = _track_over_zenoh(args, seqs, classes, config)
+        else:
+            results = track_all(args.data, seqs, classes, config, args.results_dir)
         print(
             f"tracked {len(seqs)} sequence(s) in {time.perf_counter() - started:.1f} s: {results}"
         )

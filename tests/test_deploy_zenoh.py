@@ -1,0 +1,232 @@
+"""The Zenoh router configs in deploy/zenoh/: explicit endpoints only, and the vehicle-facing
+mTLS + access-control example enforced by a real router (this process, ``mode: router``, with
+the file's settings; only its addresses and certificate paths are replaced)."""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import shutil
+import subprocess
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from service.zenoh_config import open_session
+from tests.service_helpers import free_port, wait_for
+
+ROOT = Path(__file__).resolve().parents[1]
+ZENOH_DIR = ROOT / "deploy" / "zenoh"
+ROUTER_CONFIGS = sorted(ZENOH_DIR.glob("router*.json5"))
+MTLS = ZENOH_DIR / "router-vehicles-mtls.json5"
+VEHICLE = ZENOH_DIR / "vehicle-client-mtls.json5"
+WILDCARD_HOSTS = {"0.0.0.0", "::", "[::]", "", "*"}
+
+
+def load(path: Path) -> zenoh.Config:
+    return zenoh.Config.from_json5(path.read_text())  # rejects unknown keys, like zenohd
+
+
+def get(config: zenoh.Config, key: str) -> object:
+    return json.loads(config.get_json(key))
+
+
+def host_port(endpoint: str) -> tuple[str, str]:
+    _, _, address = endpoint.partition("/")
+    address = address.split("#")[0].split("?")[0]
+    host, _, port = address.rpartition(":")
+    return host, port
+
+
+def test_there_are_router_configs() -> None:
+    assert {p.name for p in ROUTER_CONFIGS} >= {"router.json5", MTLS.name}
+
+
+@pytest.mark.parametrize("path", ROUTER_CONFIGS, ids=lambda p: p.name)
+def test_router_listens_only_on_explicit_addresses(path: Path) -> None:
+    config = load(path)
+    assert get(config, "mode") == "router"
+    listen = get(config, "listen/endpoints")
+    assert isinstance(listen, list) and listen, "a router without listen endpoints uses [::]:7447"
+    for endpoint in listen:
+        host, port = host_port(endpoint)
+        assert host not in WILDCARD_HOSTS, f"{path.name}: {endpoint} listens on every interface"
+        ipaddress.ip_address(host.strip("[]"))  # an address, not a name that may resolve widely
+        assert port.isdigit() and int(port) > 0, f"{path.name}: {endpoint} has no fixed port"
+    assert get(config, "scouting/multicast/enabled") is False, f"{path.name}: multicast scouting"
+    rest = get(config, "plugins").get("rest")  # type: ignore[union-attr]
+    if rest is not None:
+        bind = str(rest["http_port"])
+        host, _, port = bind.rpartition(":")
+        assert host not in WILDCARD_HOSTS, f"{path.name}: the REST plugin binds {bind!r}"
+        assert get(config, "adminspace/permissions/write") is False
+
+
+def test_the_vehicle_router_requires_mtls_and_denies_by_default() -> None:
+    config = load(MTLS)
+    protos = {e.partition("/")[0] for e in get(config, "listen/endpoints")}  # type: ignore[union-attr]
+    assert "tls" in protos
+    assert get(config, "transport/link/tls/enable_mtls") is True
+    assert get(config, "access_control/enabled") is True
+    assert get(config, "access_control/default_permission") == "deny"
+    assert get(config, "adminspace/enabled") is False
+    assert get(config, "plugins") == {}
+
+
+# ----------------------------------------------------------------------------- live router
+def _openssl(*args: str, cwd: Path) -> None:
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=30)
+
+
+def _issue(tmp: Path, name: str, cn: str, ext: str) -> None:
+    (tmp / f"{name}.ext").write_text(ext)
+    _openssl(
+        "req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
+        "-keyout", f"{name}.key", "-out", f"{name}.csr", "-subj", f"/CN={cn}",
+        cwd=tmp,
+    )  # fmt: skip
+    _openssl(
+        "x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+        "-CAcreateserial", "-days", "2", "-out", f"{name}.pem", "-extfile", f"{name}.ext",
+        cwd=tmp,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    tmp = tmp_path_factory.mktemp("certs")
+    _openssl(
+        "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
+        "-keyout", "ca.key", "-out", "ca.pem", "-days", "2", "-subj", "/CN=test fleet CA",
+        "-addext", "basicConstraints=critical,CA:TRUE",
+        "-addext", "keyUsage=critical,keyCertSign,cRLSign",
+        cwd=tmp,
+    )  # fmt: skip
+    leaf = "basicConstraints=CA:FALSE\nkeyUsage=critical,digitalSignature\n"
+    _issue(
+        tmp,
+        "gateway",
+        "gateway-a",
+        leaf + "extendedKeyUsage=serverAuth\nsubjectAltName=IP:127.0.0.1\n",
+    )
+    for vehicle in ("truck-07", "van-02"):
+        _issue(tmp, vehicle, vehicle, leaf + "extendedKeyUsage=clientAuth\n")
+    return tmp
+
+
+class Router:
+    def __init__(self, certs: Path) -> None:
+        self.tls = f"tls/127.0.0.1:{free_port()}"
+        self.tcp = f"tcp/127.0.0.1:{free_port()}"
+        config = load(MTLS)
+        config.insert_json5("listen/endpoints", json.dumps([self.tls, self.tcp]))
+        config.insert_json5("connect/endpoints", "[]")
+        tls = "transport/link/tls"
+        config.insert_json5(f"{tls}/root_ca_certificate", json.dumps(str(certs / "ca.pem")))
+        config.insert_json5(f"{tls}/listen_private_key", json.dumps(str(certs / "gateway.key")))
+        config.insert_json5(f"{tls}/listen_certificate", json.dumps(str(certs / "gateway.pem")))
+        self.session = zenoh.open(config)
+
+
+def vehicle_session(router: Router, certs: Path, name: str | None) -> zenoh.Session:
+    """The vehicle example config, pointed at the test router and certificates."""
+    config = load(VEHICLE)
+    config.insert_json5("connect/endpoints", json.dumps([router.tls]))
+    tls = "transport/link/tls"
+    config.insert_json5(f"{tls}/root_ca_certificate", json.dumps(str(certs / "ca.pem")))
+    for key, suffix in (("connect_private_key", "key"), ("connect_certificate", "pem")):
+        if name is None:
+            config.insert_json5(f"{tls}/{key}", "null")
+        else:
+            config.insert_json5(f"{tls}/{key}", json.dumps(str(certs / f"{name}.{suffix}")))
+    return zenoh.open(config)
+
+
+class Inbox:
+    def __init__(self) -> None:
+        self.keys: list[str] = []
+        self._lock = threading.Lock()
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.keys.append(str(sample.key_expr))
+
+    def snapshot(self) -> list[str]:
+        with self._lock:
+            return list(self.keys)
+
+
+@pytest.fixture
+def router(certs: Path) -> Iterator[Router]:
+    r = Router(certs)
+    try:
+        yield r
+    finally:
+        r.session.close()  # type: ignore[no-untyped-call]
+
+
+@pytest.mark.zenoh
+def test_a_vehicle_without_a_certificate_cannot_connect(router: Router, certs: Path) -> None:
+    with pytest.raises(zenoh.ZError):
+        vehicle_session(router, certs, None).close()  # type: ignore[no-untyped-call]
+
+
+@pytest.mark.zenoh
+def test_each_vehicle_reaches_only_its_own_keys(router: Router, certs: Path) -> None:
+    service = open_session(mode="client", connect=[router.tcp])  # the backbone side
+    truck = vehicle_session(router, certs, "truck-07")
+    try:
+        detections, errors_seen_by_truck = Inbox(), Inbox()
+        service.declare_subscriber("fleet/*/*/detections", detections)
+        truck.declare_subscriber("fleet/*/*/errors", errors_seen_by_truck)
+
+        own = truck.declare_publisher("fleet/truck-07/lidar/detections")
+        # The service's subscription reaches the vehicle (egress rule): its publisher matches.
+        wait_for(lambda: own.matching_status.matching, 10, "the service's subscriber")
+        other = truck.declare_publisher("fleet/van-02/lidar/detections")
+        assert not other.matching_status.matching  # the subscription of another vehicle's key
+
+        other.put(b"spoofed")  # sent first: were it let through, it would arrive first
+        own.put(b"frame")
+        wait_for(lambda: detections.snapshot(), 10, "the vehicle's own detections")
+        assert detections.snapshot() == ["fleet/truck-07/lidar/detections"]
+
+        service.put("fleet/van-02/lidar/errors", b"not for the truck")
+        # The truck's subscription must have reached the router before the service publishes.
+        deadline_key = "fleet/truck-07/lidar/errors"
+        wait_for(
+            lambda: _deliver(service, deadline_key, errors_seen_by_truck),
+            10,
+            "an error for the truck",
+        )
+        assert set(errors_seen_by_truck.snapshot()) == {deadline_key}
+
+        # The service's status and snapshots are for the backbone, not for vehicles.
+        service.declare_queryable("fleet/@simpletrack/svc/status", _answer)
+        backbone = open_session(mode="client", connect=[router.tcp])
+        try:
+            wait_for(lambda: _replies(backbone) == 1, 10, "the status on the backbone")
+        finally:
+            backbone.close()  # type: ignore[no-untyped-call]
+        assert _replies(truck) == 0
+    finally:
+        truck.close()  # type: ignore[no-untyped-call]
+        service.close()  # type: ignore[no-untyped-call]
+
+
+def _deliver(session: zenoh.Session, key: str, inbox: Inbox) -> bool:
+    session.put(key, b"error")
+    return key in inbox.snapshot()
+
+
+def _answer(query: zenoh.Query) -> None:
+    query.reply("fleet/@simpletrack/svc/status", b"status")
+
+
+def _replies(session: zenoh.Session) -> int:
+    return sum(1 for r in session.get("fleet/@simpletrack/*/status", timeout=1.0) if r.ok)
