@@ -20,6 +20,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "clients.commands.record",
     "clients.commands.demo",
     "clients.commands.watch",
+    "clients.commands.bench",
     "service.commands.serve",
 )
 

@@ -35,7 +35,7 @@ from service.zenoh_config import ZenohOptions
 
 ENV_PREFIX = "SIMPLETRACK_"
 DEFAULT_LISTEN = ("tcp/127.0.0.1:7447",)
-DOC_COMMAND = "python -m service.settings --write docs/SERVICE.md"
+DOC_COMMAND = "python -m service.settings --write <this file>"
 
 
 class Backpressure(StrEnum):

@@ -181,30 +181,32 @@ def test_each_vehicle_reaches_only_its_own_keys(router: Router, certs: Path) -> 
     service = open_session(mode="client", connect=[router.tcp])  # the backbone side
     truck = vehicle_session(router, certs, "truck-07")
     try:
-        detections, errors_seen_by_truck = Inbox(), Inbox()
+        detections, own_errors, all_errors = Inbox(), Inbox(), Inbox()
         service.declare_subscriber("fleet/*/*/detections", detections)
-        truck.declare_subscriber("fleet/*/*/errors", errors_seen_by_truck)
+        # What DetectionPublisher subscribes to, and a fleet-wide snoop the router refuses.
+        truck.declare_subscriber("fleet/truck-07/lidar/errors", own_errors)
+        truck.declare_subscriber("fleet/*/*/errors", all_errors)
 
         own = truck.declare_publisher("fleet/truck-07/lidar/detections")
         # The service's subscription reaches the vehicle (egress rule): its publisher matches.
         wait_for(lambda: own.matching_status.matching, 10, "the service's subscriber")
         other = truck.declare_publisher("fleet/van-02/lidar/detections")
-        assert not other.matching_status.matching  # the subscription of another vehicle's key
+        wait_for(lambda: other.matching_status.matching, 10, "a match: the router must refuse")
 
         other.put(b"spoofed")  # sent first: were it let through, it would arrive first
         own.put(b"frame")
         wait_for(lambda: detections.snapshot(), 10, "the vehicle's own detections")
         assert detections.snapshot() == ["fleet/truck-07/lidar/detections"]
 
-        service.put("fleet/van-02/lidar/errors", b"not for the truck")
-        # The truck's subscription must have reached the router before the service publishes.
-        deadline_key = "fleet/truck-07/lidar/errors"
-        wait_for(
-            lambda: _deliver(service, deadline_key, errors_seen_by_truck),
-            10,
-            "an error for the truck",
-        )
-        assert set(errors_seen_by_truck.snapshot()) == {deadline_key}
+        def deliver() -> bool:  # until the truck's subscription has reached the router
+            service.put("fleet/van-02/lidar/errors", b"not for the truck")
+            service.put("fleet/truck-07/lidar/errors", b"error")
+            return bool(own_errors.snapshot())
+
+        wait_for(deliver, 10, "an error for the truck")
+        assert set(own_errors.snapshot()) == {"fleet/truck-07/lidar/errors"}
+        # The session hands its own errors to both subscribers; never another vehicle's.
+        assert set(all_errors.snapshot()) == {"fleet/truck-07/lidar/errors"}
 
         # The service's status and snapshots are for the backbone, not for vehicles.
         service.declare_queryable("fleet/@simpletrack/svc/status", _answer)
@@ -217,11 +219,6 @@ def test_each_vehicle_reaches_only_its_own_keys(router: Router, certs: Path) -> 
     finally:
         truck.close()  # type: ignore[no-untyped-call]
         service.close()  # type: ignore[no-untyped-call]
-
-
-def _deliver(session: zenoh.Session, key: str, inbox: Inbox) -> bool:
-    session.put(key, b"error")
-    return key in inbox.snapshot()
 
 
 def _answer(query: zenoh.Query) -> None:

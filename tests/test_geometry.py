@@ -18,6 +18,7 @@ from service.core.geometry import (
     bev_hull_area,
     bev_intersection_area,
     distance_matrix,
+    distance_pairs,
     giou_3d,
     giou_bev,
     iou_3d,
@@ -379,6 +380,22 @@ def test_distance_matrix_dispatches_every_metric() -> None:
     np.testing.assert_array_equal(ref, 1 - giou_3d(a, b, vertical=REFERENCE))
     with pytest.raises(ValueError, match="innovation"):
         distance_matrix(Metric.MAHALANOBIS, a, b)
+
+
+def test_distance_pairs_equal_the_matrix_entries_bit_for_bit() -> None:
+    # The tracker scores only same-class pairs, all classes in one call: same values.
+    rng = np.random.default_rng(21)
+    a, b = random_boxes(rng, 40, spread=6.0), random_boxes(rng, 30, spread=6.0)
+    s = np.broadcast_to(np.eye(7) * 1.5, (30, 7, 7))
+    ia, ib = np.nonzero(rng.random((40, 30)) < 0.4)
+    for metric in Metric:
+        for vertical in VerticalOverlap:
+            dense = distance_matrix(metric, a, b, vertical=vertical, innovation=s)
+            pairs = distance_pairs(metric, a, b, ia, ib, vertical=vertical, innovation=s)
+            np.testing.assert_array_equal(pairs, dense[ia, ib])
+    assert distance_pairs(Metric.GIOU_3D, a, b, [], []).shape == (0,)
+    with pytest.raises(ValueError, match="det indices"):
+        distance_pairs(Metric.GIOU_3D, a, b, [0, 1], [0])
 
 
 # ---------------------------------------------------------------- properties

@@ -104,9 +104,10 @@ def test_serve_user_errors_are_one_line_and_exit_2(
     assert "address already in use" in err.lower() and "Traceback" not in err
 
 
-def test_docs_tables_are_generated_from_the_code() -> None:
-    text = (ROOT / "docs" / "SERVICE.md").read_text()
-    assert refresh_docs(text) == text, "run: python -m service.settings --write docs/SERVICE.md"
+@pytest.mark.parametrize("doc", ["docs/SERVICE.md", "README.md"])
+def test_docs_tables_are_generated_from_the_code(doc: str) -> None:
+    text = (ROOT / doc).read_text()
+    assert refresh_docs(text) == text, f"run: python -m service.settings --write {doc}"
     for name in ("backpressure", "snapshot_interval_s", "SIMPLETRACK_ZENOH__MODE"):
         assert name in text
     for name in ("simpletrack_frames_rejected_total", "simpletrack_end_to_end_seconds"):

@@ -280,6 +280,7 @@ class CoreOptions:
     kitti_sequences: int
     sizes: tuple[int, ...]
     sweep_frames: int
+    sweep_budget_s: float = 5.0
 
 
 def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict[str, Any]:
@@ -295,7 +296,7 @@ def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict
     sw = None
     if opts.sizes:
         progress(f"scaling sweep: {', '.join(map(str, opts.sizes))} boxes ...")
-        sw = sweep(opts.sizes, opts.sweep_frames)
+        sw = sweep(opts.sizes, opts.sweep_frames, opts.sweep_budget_s)
     return {"loads": results, "reference": against_reference(results), "sweep": sw}
 
 

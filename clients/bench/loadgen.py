@@ -157,8 +157,10 @@ def load_streams(spec: LoadSpec) -> list[list[dict[str, Any]]]:
     """Box columns per frame for each distinct stream; sensor i replays stream i % len."""
     if spec.source == "synthetic":
         n = min(spec.sensors, 4)
-        return [[box_columns(b) for b in synthetic_box_arrays(spec.synthetic_boxes, s)]
-                for s in range(n)]  # fmt: skip
+        return [
+            [box_columns(b) for b in synthetic_box_arrays(spec.synthetic_boxes, s)]
+            for s in range(n)
+        ]
     files = list(scene_files(Path(spec.data)))[: spec.sensors]
     return [[box_columns(b) for b in scene_box_arrays(p)] for p in files]
 

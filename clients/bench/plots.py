@@ -40,19 +40,31 @@ def core_scaling(sweep: dict[str, Any], path: Path) -> Path:
     boxes = [p["boxes"] for p in pts]
     p50 = [p["latency"]["p50_ms"] for p in pts]
     p99 = [p["latency"]["p99_ms"] for p in pts]
-    fig = _figure(7.5, 5.0)
+    fig = _figure(9.0, 5.0)
     ax = fig.add_subplot(1, 1, 1)
     ax.plot(boxes, p50, "o-", color="black", lw=2, label="per frame, median")
     ax.plot(boxes, p99, "v:", color="black", lw=1, label="per frame, p99")
     k, c = sweep["exponent"], sweep["coefficient_ms"]
     lo, hi = min(boxes), max(boxes)
-    ax.plot([lo, hi], [c * lo**k, c * hi**k], "--", color="black", alpha=0.5,
-            label=f"fit: time ∝ boxes^{k:.2f}")  # fmt: skip
+    ax.plot(
+        [lo, hi],
+        [c * lo**k, c * hi**k],
+        "--",
+        color="black",
+        alpha=0.5,
+        label=f"fit: time ∝ boxes^{k:.2f}",
+    )
     for stage in (*STAGES, OTHER):
         ms = [p["stages"]["ms_per_frame"].get(stage, 0.0) for p in pts]
         if max(ms) > 0:
-            ax.plot(boxes, [max(v, 1e-4) for v in ms], ".-", lw=1,
-                    color=STAGE_COLOURS.get(stage), label=stage)  # fmt: skip
+            ax.plot(
+                boxes,
+                [max(v, 1e-4) for v in ms],
+                ".-",
+                lw=1,
+                color=STAGE_COLOURS.get(stage),
+                label=stage,
+            )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("boxes per frame (= live tracks), one class")
@@ -61,7 +73,7 @@ def core_scaling(sweep: dict[str, Any], path: Path) -> Path:
     extra = f", from 100 boxes: {tail:.2f}" if tail is not None else ""
     ax.set_title(f"Tracker step vs load: growth exponent {k:.2f}{extra}")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path)
     return path
@@ -70,7 +82,7 @@ def core_scaling(sweep: dict[str, Any], path: Path) -> Path:
 def core_stages(loads: dict[str, Any], path: Path) -> Path:
     """Milliseconds per frame in each stage, one bar per load."""
     names = list(loads)
-    fig = _figure(7.5, 1.2 + 0.7 * max(len(names), 1))
+    fig = _figure(7.5, 1.8 + 0.7 * max(len(names), 1))
     ax = fig.add_subplot(1, 1, 1)
     left = [0.0] * len(names)
     for stage in (*STAGES, OTHER):
@@ -79,7 +91,7 @@ def core_stages(loads: dict[str, Any], path: Path) -> Path:
         left = [a + b for a, b in zip(left, ms, strict=True)]
     ax.set_xlabel("ms per frame (shimmed pass)")
     ax.set_title("Where a tracker step goes")
-    ax.legend(fontsize=7, ncol=4, loc="lower right")
+    ax.legend(fontsize=7, ncol=8, loc="upper center", bbox_to_anchor=(0.5, -0.3))
     fig.tight_layout()
     fig.savefig(path)
     return path
@@ -89,8 +101,16 @@ def service_cdf(steps: list[dict[str, Any]], path: Path) -> Path:
     """Latency CDF per sensor count: tracker solid, Zenoh echo floor dashed."""
     fig = _figure(7.5, 5.0)
     ax = fig.add_subplot(1, 1, 1)
-    colours = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
-               "tab:pink", "tab:gray"]  # fmt: skip
+    colours = [
+        "tab:blue",
+        "tab:orange",
+        "tab:green",
+        "tab:red",
+        "tab:purple",
+        "tab:brown",
+        "tab:pink",
+        "tab:gray",
+    ]
     sensors = sorted({s["sensors"] for s in steps})
     for i, n in enumerate(sensors):
         colour = colours[i % len(colours)]
