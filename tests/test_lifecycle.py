@@ -23,7 +23,7 @@ def _states(pattern: str, min_hits: int, max_age: int, warmup: int) -> list[Trac
     for i, ch in enumerate(pattern):
         k = warmup + i
         t.step(frame([car(0.3 * k)] if ch == "x" else [], 0.1 * k))
-        live = [s for s, tid in zip(t.tracks.state.tolist(), t.tracks.ids.tolist()) if tid == 0]
+        live = t.tracks.state[t.tracks.ids == 0].tolist()
         out.append(TrackState(live[0]) if live else GONE)
     return out
 
