@@ -67,18 +67,6 @@ class TrackFileError(ValueError):
 
 # Detector type codes of the KITTI-style detection files (data/README.md).
 KITTI_DET_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}
-NUSCENES_DET_TYPES = {
-    1: "pedestrian",
-    2: "car",
-    3: "bicycle",
-    4: "motorcycle",
-    5: "bus",
-    6: "trailer",
-    7: "truck",
-    8: "construction_vehicle",
-    9: "barrier",
-    10: "traffic_cone",
-}
 
 
 def _build(rows: dict[int, list[tuple[int, list[float], str, float]]]) -> Sequence:

@@ -299,12 +299,18 @@ def command_line(df: Dockerfile) -> list[str] | None:
     return e + c
 
 
-def healthcheck_command(df: Dockerfile) -> str:
+def healthcheck_argv(df: Dockerfile) -> list[str]:
+    """The HEALTHCHECK command as the engine runs it (shell form through /bin/sh -c)."""
     health = df.stages[-1].last("HEALTHCHECK")
     assert health is not None
     m = re.match(r"(?:--\S+\s+)*CMD\s+(.*)", health.args)
     assert m, health.args
-    return m.group(1)
+    command = m.group(1)
+    if command.startswith("["):
+        value = json.loads(command)
+        assert isinstance(value, list)
+        return [str(v) for v in value]
+    return ["/bin/sh", "-c", command]
 
 
 def healthcheck_flags(df: Dockerfile) -> dict[str, float]:
@@ -418,7 +424,7 @@ def smoke_run(df: Dockerfile, env: dict[str, str], work: Path, grace_s: float = 
         "SIMPLETRACK_INSTANCE": "dockerfile-check",
     }
     log = work / "serve.log"
-    health = healthcheck_command(df)
+    health = healthcheck_argv(df)
     flags = healthcheck_flags(df)
     print(f"  start: {' '.join(argv)}  (metrics on 127.0.0.1:{port})")
     with log.open("wb") as out:
@@ -426,8 +432,9 @@ def smoke_run(df: Dockerfile, env: dict[str, str], work: Path, grace_s: float = 
     try:
         deadline = time.monotonic() + flags["start-period"] + flags["retries"] * flags["interval"]
         while True:
+            exe_health = shutil.which(health[0], path=run_env["PATH"]) or health[0]
             rc = subprocess.call(
-                ["/bin/sh", "-c", health],
+                [exe_health, *health[1:]],
                 env=run_env,
                 timeout=flags["timeout"] + 5,
                 stdout=subprocess.DEVNULL,

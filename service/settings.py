@@ -170,7 +170,12 @@ class ServiceSettings(BaseSettings):
         if not isinstance(data, dict):
             return data
         z = data.get("zenoh", {})
-        if isinstance(z, Mapping) and "listen" not in z and z.get("mode", "peer") == "peer":
+        if (
+            isinstance(z, Mapping)
+            and "listen" not in z
+            and "config_file" not in z  # a Zenoh config file says where to listen
+            and z.get("mode", "peer") == "peer"
+        ):
             data = {**data, "zenoh": {**z, "listen": list(DEFAULT_LISTEN)}}
         return data
 
@@ -302,7 +307,9 @@ def _default(info: FieldInfo) -> str:
     return f"`{value!r}`" if value is not None else "none"
 
 
-_DOC_DEFAULTS = {"zenoh.listen": f"`{list(DEFAULT_LISTEN)!r}` in peer mode, else `[]`"}
+_DOC_DEFAULTS = {
+    "zenoh.listen": f"`{list(DEFAULT_LISTEN)!r}` in peer mode without a config file, else `[]`"
+}
 
 
 def _rows(model: type[BaseModel], path: str, env: str) -> Iterator[str]:

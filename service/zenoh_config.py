@@ -8,6 +8,11 @@
 Multicast scouting is off and nothing listens unless asked: peers find each other only through
 explicit ``--listen``/``--connect`` endpoints (e.g. ``tcp/127.0.0.1:7447``), so a process never
 opens a port on every interface by accident. In client mode ``--connect`` names the router(s).
+
+``--zenoh-config FILE`` starts from a Zenoh JSON5 config file instead (TLS/mTLS endpoints and
+certificates, access control, timeouts: see deploy/zenoh/); the explicit options above are laid
+over it only where given. ``connect_timeout_ms = -1`` makes a client wait for its router rather
+than fail at start.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 from enum import StrEnum
+from pathlib import Path
 from typing import Annotated
 
 import zenoh
@@ -47,6 +53,15 @@ class ZenohOptions(BaseModel):
         default_factory=list, description="endpoints (peers or routers) to connect to"
     )
     multicast_scouting: bool = Field(default=False, description="discover peers by UDP multicast")
+    config_file: Path | None = Field(
+        default=None,
+        description="Zenoh JSON5 config file to start from (TLS, access control); options above override it where given",
+    )
+    connect_timeout_ms: int | None = Field(
+        default=None,
+        ge=-1,
+        description="how long to try the connect endpoints at start (-1: wait for the router forever)",
+    )
 
     @field_validator("listen", "connect")
     @classmethod
@@ -59,8 +74,17 @@ class ZenohOptions(BaseModel):
                 )
         return v
 
+    @field_validator("config_file")
+    @classmethod
+    def _file_exists(cls, v: Path | None) -> Path | None:
+        if v is not None and not v.is_file():
+            raise ValueError(f"zenoh config file {str(v)!r} does not exist")
+        return v
+
     @model_validator(mode="after")
     def _client_needs_router(self) -> ZenohOptions:
+        if self.config_file is not None:
+            return self  # the file may name the routers
         if self.mode is ZenohMode.CLIENT and not self.connect and not self.multicast_scouting:
             raise ValueError("client mode needs at least one --connect endpoint (a router)")
         if self.mode is ZenohMode.CLIENT and self.listen:
@@ -74,14 +98,28 @@ class ZenohOptions(BaseModel):
             mode=args.zenoh_mode or ZenohMode.PEER,
             listen=list(args.zenoh_listen or []),
             connect=list(args.zenoh_connect or []),
+            config_file=getattr(args, "zenoh_config", None),
         )
 
     def to_config(self) -> zenoh.Config:
-        config = zenoh.Config()
-        config.insert_json5("mode", json.dumps(self.mode.value))
-        config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
-        config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-        config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        if self.config_file is not None:
+            # The file is the base: only what was given explicitly is laid over it.
+            config = zenoh.Config.from_file(str(self.config_file))
+            given = self.model_fields_set
+            if "mode" in given:
+                config.insert_json5("mode", json.dumps(self.mode.value))
+            if self.listen:
+                config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+            if self.connect:
+                config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        else:
+            config = zenoh.Config()
+            config.insert_json5("mode", json.dumps(self.mode.value))
+            config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+            config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+            config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        if self.connect_timeout_ms is not None:
+            config.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
         return config
 
 
@@ -111,6 +149,13 @@ def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT",
         help=f"connect to this peer or router (repeatable), {ZENOH_ENDPOINT_HELP}",
     )
+    group.add_argument(
+        "--zenoh-config",
+        dest="zenoh_config",
+        type=Path,
+        metavar="FILE",
+        help="start from this Zenoh JSON5 config (TLS/mTLS, access control); flags override it",
+    )
 
 
 def zenoh_overrides(args: argparse.Namespace) -> dict[str, object]:
@@ -122,6 +167,8 @@ def zenoh_overrides(args: argparse.Namespace) -> dict[str, object]:
         out["listen"] = list(args.zenoh_listen)
     if getattr(args, "zenoh_connect", None):
         out["connect"] = list(args.zenoh_connect)
+    if getattr(args, "zenoh_config", None):
+        out["config_file"] = args.zenoh_config
     return out
 
 

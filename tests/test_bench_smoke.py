@@ -170,6 +170,7 @@ def test_profile_summary_ranks_functions(tmp_path: Path) -> None:
     assert prof["samples"] == 40
     assert prof["self"][0] == ("step (tracker.py)", 0.75)
     assert dict(prof["inclusive"])["run (pool.py)"] == 1.0
+    assert prof["roles"] == [("other", 1.0)]
 
 
 @pytest.mark.zenoh

@@ -1,18 +1,26 @@
-"""The Zenoh router configs in deploy/zenoh/: explicit endpoints only, and the vehicle-facing
-mTLS + access-control example enforced by a real router (this process, ``mode: router``, with
-the file's settings; only its addresses and certificate paths are replaced)."""
+"""The Zenoh router configs (deploy/zenoh/, deploy/k8s/): explicit endpoints only; the
+vehicle-facing mTLS + access-control example enforced by a real router (this process,
+``mode: router``, with the file's settings; only its addresses and certificate paths are
+replaced); and the compose router, service and demo fleet wired together."""
 
 from __future__ import annotations
 
 import ipaddress
 import json
+import os
+import re
 import shutil
+import signal
 import subprocess
+import sys
 import threading
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
+import yaml
 import zenoh
 
 from service.zenoh_config import open_session
@@ -20,7 +28,10 @@ from tests.service_helpers import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 ZENOH_DIR = ROOT / "deploy" / "zenoh"
-ROUTER_CONFIGS = sorted(ZENOH_DIR.glob("router*.json5"))
+ROUTER_CONFIGS = [
+    *sorted(ZENOH_DIR.glob("router*.json5")),
+    ROOT / "deploy" / "k8s" / "zenoh-router.json5",
+]
 MTLS = ZENOH_DIR / "router-vehicles-mtls.json5"
 VEHICLE = ZENOH_DIR / "vehicle-client-mtls.json5"
 WILDCARD_HOSTS = {"0.0.0.0", "::", "[::]", "", "*"}
@@ -30,7 +41,7 @@ def load(path: Path) -> zenoh.Config:
     return zenoh.Config.from_json5(path.read_text())  # rejects unknown keys, like zenohd
 
 
-def get(config: zenoh.Config, key: str) -> object:
+def get(config: zenoh.Config, key: str) -> Any:
     return json.loads(config.get_json(key))
 
 
@@ -45,29 +56,64 @@ def test_there_are_router_configs() -> None:
     assert {p.name for p in ROUTER_CONFIGS} >= {"router.json5", MTLS.name}
 
 
+def exposure_problems(config: zenoh.Config) -> list[str]:
+    """Ways a router config opens more than it names: wildcard or missing listen addresses,
+    multicast scouting, a REST plugin on every interface or a writable admin space."""
+    out = []
+    listen = get(config, "listen/endpoints")
+    if not listen:
+        out.append("no listen endpoints: zenohd then listens on tcp/[::]:7447")
+    for endpoint in listen or []:
+        host, port = host_port(endpoint)
+        if host in WILDCARD_HOSTS:
+            out.append(f"{endpoint} listens on every interface")
+        else:
+            try:
+                ipaddress.ip_address(host.strip("[]"))
+            except ValueError:
+                out.append(f"{endpoint}: a name may resolve to more than one address")
+        if not (port.isdigit() and int(port) > 0):
+            out.append(f"{endpoint} has no fixed port")
+    if get(config, "scouting/multicast/enabled") is not False:
+        out.append("multicast scouting is on")
+    rest = get(config, "plugins").get("rest")
+    if rest is not None:
+        bind = str(rest["http_port"])
+        if bind.rpartition(":")[0] in WILDCARD_HOSTS:
+            out.append(f"the REST plugin binds {bind!r}: every interface")
+        if get(config, "adminspace/permissions/write") is not False:
+            out.append("the admin space is writable through REST")
+    return out
+
+
 @pytest.mark.parametrize("path", ROUTER_CONFIGS, ids=lambda p: p.name)
 def test_router_listens_only_on_explicit_addresses(path: Path) -> None:
     config = load(path)
     assert get(config, "mode") == "router"
-    listen = get(config, "listen/endpoints")
-    assert isinstance(listen, list) and listen, "a router without listen endpoints uses [::]:7447"
-    for endpoint in listen:
-        host, port = host_port(endpoint)
-        assert host not in WILDCARD_HOSTS, f"{path.name}: {endpoint} listens on every interface"
-        ipaddress.ip_address(host.strip("[]"))  # an address, not a name that may resolve widely
-        assert port.isdigit() and int(port) > 0, f"{path.name}: {endpoint} has no fixed port"
-    assert get(config, "scouting/multicast/enabled") is False, f"{path.name}: multicast scouting"
-    rest = get(config, "plugins").get("rest")  # type: ignore[union-attr]
-    if rest is not None:
-        bind = str(rest["http_port"])
-        host, _, port = bind.rpartition(":")
-        assert host not in WILDCARD_HOSTS, f"{path.name}: the REST plugin binds {bind!r}"
-        assert get(config, "adminspace/permissions/write") is False
+    assert exposure_problems(config) == []
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "problem"),
+    [
+        ("listen/endpoints", '["tcp/0.0.0.0:7447"]', "every interface"),
+        ("listen/endpoints", '["tcp/[::]:7447"]', "every interface"),
+        ("listen/endpoints", '["tcp/router.local:7447"]', "a name"),
+        ("listen/endpoints", "[]", "no listen endpoints"),
+        ("scouting/multicast/enabled", "true", "multicast"),
+        ("plugins/rest/http_port", '"8000"', "REST plugin"),
+        ("adminspace/permissions/write", "true", "writable"),
+    ],
+)
+def test_the_exposure_check_catches_each_mistake(key: str, value: str, problem: str) -> None:
+    config = load(ZENOH_DIR / "router.json5")
+    config.insert_json5(key, value)
+    assert any(problem in p for p in exposure_problems(config))
 
 
 def test_the_vehicle_router_requires_mtls_and_denies_by_default() -> None:
     config = load(MTLS)
-    protos = {e.partition("/")[0] for e in get(config, "listen/endpoints")}  # type: ignore[union-attr]
+    protos = {e.partition("/")[0] for e in get(config, "listen/endpoints")}
     assert "tls" in protos
     assert get(config, "transport/link/tls/enable_mtls") is True
     assert get(config, "access_control/enabled") is True
@@ -195,7 +241,7 @@ def test_each_vehicle_reaches_only_its_own_keys(router: Router, certs: Path) -> 
 
         other.put(b"spoofed")  # sent first: were it let through, it would arrive first
         own.put(b"frame")
-        wait_for(lambda: detections.snapshot(), 10, "the vehicle's own detections")
+        wait_for(lambda: bool(detections.snapshot()), 10, "the vehicle's own detections")
         assert detections.snapshot() == ["fleet/truck-07/lidar/detections"]
 
         def deliver() -> bool:  # until the truck's subscription has reached the router
@@ -227,3 +273,85 @@ def _answer(query: zenoh.Query) -> None:
 
 def _replies(session: zenoh.Session) -> int:
     return sum(1 for r in session.get("fleet/@simpletrack/*/status", timeout=1.0) if r.ok)
+
+
+# ----------------------------------------------------------------------------- compose wiring
+@pytest.mark.zenoh
+def test_the_compose_stack_tracks_the_demo_fleet_through_the_router(tmp_path: Path) -> None:
+    """deploy/zenoh/router.json5 in a router, `simpletrack serve` with the environment of
+    compose.yaml as its client (addresses moved to 127.0.0.1), and the simulated fleet of
+    docs/DEPLOY.md (`simpletrack demo --service external`) through the router: every frame
+    comes back tracked, and SIGTERM leaves a snapshot of every sensor."""
+    compose = yaml.safe_load((ROOT / "deploy" / "compose.yaml").read_text())
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = load(ZENOH_DIR / "router.json5")
+    config.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    router = zenoh.open(config)
+    proc: subprocess.Popen[bytes] | None = None
+    try:
+        env = {
+            k: re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", str(v))  # compose's ${VAR:-default}
+            for k, v in compose["services"]["simpletrack"]["environment"].items()
+        }
+        assert json.loads(env["SIMPLETRACK_ZENOH__CONNECT"]) == ["tcp/zenoh-router:7447"]
+        metrics_port = free_port()
+        env |= {
+            "SIMPLETRACK_ZENOH__CONNECT": json.dumps([endpoint]),
+            "SIMPLETRACK_METRICS_HOST": "127.0.0.1",
+            "SIMPLETRACK_METRICS_PORT": str(metrics_port),
+            "SIMPLETRACK_STATE_DIR": str(tmp_path / "state"),
+        }
+        log = tmp_path / "serve.log"
+        with log.open("wb") as out:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "service.cli", "serve"],
+                cwd=ROOT,
+                env={**_clean_environ(), **env},
+                stdout=out,
+                stderr=out,
+            )
+        wait_for(lambda: _ready(proc, metrics_port, log), 60, "the service ready")
+        # The command docs/DEPLOY.md gives for feeding the compose stack.
+        summary = tmp_path / "demo.json"
+        command = "demo --service external --mode client --connect {} --duration 3 --no-live"
+        argv = [*command.format(endpoint).split(), "--json", str(summary)]
+        demo = subprocess.run(
+            [sys.executable, "-m", "service.cli", *argv],
+            cwd=ROOT,
+            env=_clean_environ(),
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        assert demo.returncode == 0, demo.stdout + demo.stderr
+        frames = json.loads(summary.read_text())["frames"]
+        assert frames["published"] > 0
+        assert frames["tracked"] == frames["published"] and frames["rejected"] == {}
+        streams = sorted(json.loads(summary.read_text())["streams"])
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                assert proc.wait(30) == 0
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+                raise
+        router.close()  # type: ignore[no-untyped-call]
+    for stream in streams:  # every sensor snapshotted on SIGTERM
+        assert (tmp_path / "state" / f"{stream}.snap").is_file(), stream
+
+
+def _clean_environ() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if not k.startswith("SIMPLETRACK_")}
+
+
+def _ready(proc: subprocess.Popen[bytes], port: int, log: Path) -> bool:
+    if proc.poll() is not None:
+        raise AssertionError(f"serve exited with {proc.returncode}:\n{log.read_text()}")
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/readyz", timeout=2) as r:
+            return int(r.status) == 200
+    except OSError:
+        return False

@@ -163,14 +163,14 @@ def stage_breakdown(
                 t0 = clock()
                 tracker.step(frame)
                 timed_total += (clock() - t0) * 1e-9
-    frames = sum(max(len(s[:cap]) - skip, 0) for s in streams)
+    timed = sum(max(len(s[:cap]) - skip, 0) for s in streams)
     seconds = dict(timer.seconds)
     seconds[OTHER] = max(timed_total - sum(seconds.values()), 0.0)
     share = {k: (v / timed_total if timed_total > 0 else 0.0) for k, v in seconds.items()}
     return {
-        "frames": frames,
+        "frames": timed,
         "shimmed_total_s": round(timed_total, 4),
-        "ms_per_frame": {k: round(1e3 * v / max(frames, 1), 4) for k, v in seconds.items()},
+        "ms_per_frame": {k: round(1e3 * v / max(timed, 1), 4) for k, v in seconds.items()},
         "share": {k: round(v, 4) for k, v in share.items()},
         "calls": dict(timer.calls),
         "missing_targets": timer.missing,
@@ -209,7 +209,7 @@ def sweep(
     fewer (at least MIN_TIMED) when they take over ``budget_s``."""
     config = preset("nuscenes")
     warm_up(config, synthetic_stream(10, 5))
-    points = []
+    points: list[dict[str, Any]] = []
     for n in sizes:
         stream = synthetic_stream(n, frames + ramp, seed=n)
         lat = time_streams(config, [stream], skip=ramp, budget_s=budget_s)

@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         print("ready", flush=True)
         while not stop.wait(0.2):
             pass
-        sub.undeclare()
+        sub.undeclare()  # type: ignore[no-untyped-call]
     return 0
 
 

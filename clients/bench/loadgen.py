@@ -308,7 +308,7 @@ def run(conn: Connection, spec: LoadSpec) -> None:
                 for i in range(spec.sensors)
             ]
             deadline = time.monotonic() + 30
-            while not all(p.matching_status.matching for p in pubs):
+            while not all(p.matching_status.matching for p in pubs):  # type: ignore[attr-defined]
                 if time.monotonic() > deadline:
                     raise RuntimeError("no subscriber matched the detection keys within 30 s")
                 time.sleep(0.02)

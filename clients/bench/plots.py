@@ -54,6 +54,17 @@ def core_scaling(sweep: dict[str, Any], path: Path) -> Path:
         alpha=0.5,
         label=f"fit: time ∝ boxes^{k:.2f}",
     )
+    kt, ct = sweep.get("exponent_from_100"), sweep.get("coefficient_from_100_ms")
+    if kt is not None and ct is not None:
+        tail = [b for b in boxes if b >= 100]
+        ax.plot(
+            [min(tail), hi],
+            [ct * min(tail) ** kt, ct * hi**kt],
+            "-.",
+            color="red",
+            alpha=0.5,
+            label=f"fit from 100 boxes: ∝ boxes^{kt:.2f}",
+        )
     for stage in (*STAGES, OTHER):
         ms = [p["stages"]["ms_per_frame"].get(stage, 0.0) for p in pts]
         if max(ms) > 0:
@@ -69,8 +80,7 @@ def core_scaling(sweep: dict[str, Any], path: Path) -> Path:
     ax.set_yscale("log")
     ax.set_xlabel("boxes per frame (= live tracks), one class")
     ax.set_ylabel("ms per frame")
-    tail = sweep.get("exponent_from_100")
-    extra = f", from 100 boxes: {tail:.2f}" if tail is not None else ""
+    extra = f", from 100 boxes: {kt:.2f}" if kt is not None else ""
     ax.set_title(f"Tracker step vs load: growth exponent {k:.2f}{extra}")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))

@@ -148,7 +148,7 @@ def service_tables(doc: dict[str, Any]) -> str:
                 fmt(s["server_cores"]),
                 fmt(stage.get("track"), 3),
                 fmt(s["loadgen_cores"]),
-                "SATURATED" if s["saturated"] else "ok",
+                "SATURATED" if s["saturated"] else ("passes" if s["passes"] else "p99 > limit"),
             ]
         )
     out += [
@@ -175,7 +175,7 @@ def service_tables(doc: dict[str, Any]) -> str:
         "",
     ]
     for s in doc["steps"]:
-        if s["saturated"]:
+        if s["why"]:
             out.append(f"{s['kind']} at {s['sensors']} sensors: " + "; ".join(s["why"]))
     cap = doc["capacity"]
     out += [
@@ -184,7 +184,8 @@ def service_tables(doc: dict[str, Any]) -> str:
         f"(goal <= {cap['goal_one_sensor_p99_ms']:g} ms)",
         f"largest passing step: {fmt(cap['max_sensors_passing'])} sensors at "
         f"{doc['steps'][0]['rate_hz'] if doc['steps'] else '-'} Hz "
-        f"(p99 < {cap['p99_limit_ms']:g} ms, nothing refused or lost); first saturated: "
+        f"(p99 < {cap['p99_limit_ms']:g} ms, nothing refused or lost); first failing: "
+        f"{fmt(cap['first_failing_sensors'])}; first saturated: "
         f"{fmt(cap['first_saturated_sensors'])}",
         f"streams per core: {fmt(cap['streams_per_core'], 1)} (1 / (server CPU per frame x rate) "
         f"at the largest passing step); goal >= {cap['goal_streams_per_core']:g}",
@@ -194,4 +195,6 @@ def service_tables(doc: dict[str, Any]) -> str:
         if prof and "self" in prof:
             top = ", ".join(f"{name} {100 * share:.0f}%" for name, share in prof["self"][:6])
             out.append(f"py-spy, {s['sensors']} sensors, innermost functions: {top}")
+            parts = ", ".join(f"{name} {100 * share:.0f}%" for name, share in prof["per_frame"][:5])
+            out.append(f"    per frame (under Worker._process): {parts}")
     return "\n".join(out)

@@ -7,14 +7,18 @@ A spawned load-generator process (loadgen.py) publishes S sensors at the rate an
 answers. This process opens no Zenoh session: it starts both, and reads the server's CPU
 time from ``/proc/<pid>/stat`` and (tracker only) its ``/metrics`` at the window's edges.
 
-S grows over the given list and stops after the first step that is saturated: p99 at or over
-the limit, or a frame refused, dropped or never answered.
+S grows over the given list and stops after the first *saturated* step: the server could
+not keep up (a frame refused, dropped or never answered, or the median latency over the
+limit). A step *passes* when it is not saturated and its p99 is under the limit; on a shared
+machine a few scheduler stalls can fail the p99 of an otherwise idle server, which is why a
+p99 failure alone does not stop the sweep.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import linecache
 import multiprocessing
 import os
 import shutil
@@ -221,22 +225,27 @@ def start_profiler(pid: int, seconds: float, out: Path) -> subprocess.Popen[byte
 
 
 def summarize_profile(path: Path, top: int = 15) -> dict[str, Any]:
-    """From py-spy's collapsed stacks: where the samples are, by innermost function (self) and
-    by function anywhere on the stack (inclusive), per thread name."""
+    """From py-spy's collapsed stacks: where the samples are, by innermost function (self), by
+    function anywhere on the stack (inclusive), and by the role of the thread."""
     self_time: Counter[str] = Counter()
     inclusive: Counter[str] = Counter()
-    threads: Counter[str] = Counter()
+    roles: Counter[str] = Counter()
+    per_frame: Counter[str] = Counter()
     total = 0
     for line in path.read_text().splitlines():
         stack, _, count_s = line.rpartition(" ")
         if not stack or not count_s.isdigit():
             continue
         count = int(count_s)
-        frames = [_frame_name(f) for f in stack.split(";")]
-        thread = next((f for f in frames if f.startswith("thread")), "thread ?")
+        raw = stack.split(";")
+        for i, f in enumerate(raw):
+            if f.startswith(FRAME_FUNCTION):
+                per_frame[_callee(raw, i)] += count
+                break
+        frames = [_frame_name(f) for f in raw]
         code = [f for f in frames if not f.startswith(("process", "thread"))]
         total += count
-        threads[thread] += count
+        roles[_role(code)] += count
         if code:
             self_time[code[-1]] += count
         for f in set(code):
@@ -247,10 +256,45 @@ def summarize_profile(path: Path, top: int = 15) -> dict[str, Any]:
 
     return {
         "samples": total,
-        "threads": share(threads),
+        "roles": share(roles),
         "self": share(self_time),
         "inclusive": share(inclusive),
+        # What the worker's per-frame function spends its samples on (its own lines are
+        # calls into native code, e.g. Zenoh's put).
+        "per_frame": [
+            (k, round(v / max(sum(per_frame.values()), 1), 4))
+            for k, v in per_frame.most_common(top)
+        ],
     }
+
+
+ROLES = (
+    ("Worker.run", "worker threads"),
+    ("Intake.__call__", "zenoh callback (intake)"),
+    ("serve_forever", "metrics http"),
+)
+
+
+def _role(code: list[str]) -> str:
+    for marker, role in ROLES:
+        if any(f.startswith(marker) for f in code):
+            return role
+    if code and code[-1].startswith("Thread.run"):
+        return "native code under a Python thread (zenoh)"
+    return "other"
+
+
+FRAME_FUNCTION = "Worker._process "
+
+
+def _callee(stack: list[str], i: int) -> str:
+    """The function called from frame ``i``, or the source line frame ``i`` was on."""
+    if i + 1 < len(stack):
+        return _frame_name(stack[i + 1])
+    where = stack[i].strip().partition(" (")[2].rstrip(")")
+    file, _, line = where.rpartition(":")
+    text = linecache.getline(str(ROOT / file), int(line)).strip() if line.isdigit() else ""
+    return f"own line {line}: {text}" if text else f"own line {line}"
 
 
 def _frame_name(frame: str) -> str:
@@ -381,14 +425,17 @@ def run_step(kind: str, sensors: int, opts: ServiceBenchOptions, tmp: Path) -> d
     if profile is not None:
         step["profile"] = profile
     step["saturated"], step["why"] = saturation(step, opts.p99_limit_ms)
+    p99 = step["latency"]["p99_ms"]
+    step["passes"] = not step["saturated"] and p99 is not None and p99 < opts.p99_limit_ms
     return step
 
 
 def saturation(step: dict[str, Any], limit_ms: float) -> tuple[bool, list[str]]:
+    """Whether the server fell behind the offered load, and the evidence."""
     why = []
-    p99 = step["latency"]["p99_ms"]
-    if p99 is None or p99 >= limit_ms:
-        why.append(f"p99 {p99} ms >= {limit_ms:g} ms")
+    p50 = step["latency"]["p50_ms"]
+    if p50 is None or p50 >= limit_ms:
+        why.append(f"median {p50} ms >= {limit_ms:g} ms (frames queue up)")
     if step["refused"]:
         why.append(f"{step['refused']} frames refused or dropped")
     if step["lost"]:
@@ -403,14 +450,16 @@ def saturation(step: dict[str, Any], limit_ms: float) -> tuple[bool, list[str]]:
 def capacity(steps: list[dict[str, Any]]) -> dict[str, Any]:
     """The saturation point and the per-core figure the goals are stated in."""
     tracker = sorted((s for s in steps if s["kind"] == "tracker"), key=lambda s: s["sensors"])
-    passing = [s for s in tracker if not s["saturated"]]
+    passing = [s for s in tracker if s["passes"]]
     first_bad = next((s for s in tracker if s["saturated"]), None)
+    first_fail = next((s for s in tracker if not s["passes"]), None)
     one = next((s for s in tracker if s["sensors"] == 1), None)
     out: dict[str, Any] = {
         "one_sensor_p99_ms": one["latency"]["p99_ms"] if one else None,
         "goal_one_sensor_p99_ms": GOAL_P99_ONE_SENSOR_MS,
         "max_sensors_passing": passing[-1]["sensors"] if passing else None,
         "server_cores_at_max": passing[-1]["server_cores"] if passing else None,
+        "first_failing_sensors": first_fail["sensors"] if first_fail else None,
         "first_saturated_sensors": first_bad["sensors"] if first_bad else None,
         "streams_per_core": None,
         "goal_streams_per_core": GOAL_STREAMS_PER_CORE,
@@ -459,7 +508,10 @@ def run_service_bench(
 
 def step_line(step: dict[str, Any]) -> str:
     lat = step["latency"]
-    flag = "SATURATED: " + "; ".join(step["why"]) if step["saturated"] else "ok"
+    if step["saturated"]:
+        flag = "SATURATED: " + "; ".join(step["why"])
+    else:
+        flag = "passes" if step["passes"] else "p99 over the limit"
     return (
         f"p50 {lat['p50_ms']} ms, p99 {lat['p99_ms']} ms, max {lat['max_ms']} ms; "
         f"{step['received']}/{step['sent']} answered, {step['refused']} refused; "
