@@ -6,12 +6,14 @@ PY="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
-stamp=.venv/.installed
+extras="test,plot"
+if [ "${CI:-}" = "true" ]; then extras="$extras,deploy-lint"; fi
+stamp=.venv/.installed-${extras//,/-}
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   # pip and setuptools are chatty (build warnings); show their output only when they fail.
   log=$(mktemp)
   if ! { .venv/bin/python -m pip install --quiet --upgrade pip &&
-         .venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[test,plot]"; } >"$log" 2>&1; then
+         .venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[$extras]"; } >"$log" 2>&1; then
     cat "$log" >&2
     echo "setup: installing the package failed (output above)" >&2
     exit 1
