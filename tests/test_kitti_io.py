@@ -243,12 +243,24 @@ def test_eval_user_mistakes_are_one_line_errors(tmp_path: Path) -> None:
         _run([*base, "--classes", "Truck"])
     with pytest.raises(UserError, match="no labels"):
         _run([*base[:-1], "0001"])
-    with pytest.raises(UserError, match="not available yet"):
-        _run([*base, "--transport", "zenoh"])
     with pytest.raises(UserError, match="no result file"):
         _run([*base, "--results", str(tmp_path)])
     with pytest.raises(UserError, match="unknown preset"):
         _run([*base, "--preset", "nope"])
+
+
+@pytest.mark.zenoh
+def test_eval_through_a_real_service_prints_the_offline_figures(tmp_path: Path) -> None:
+    root = _tiny_kitti(tmp_path / "kitti")
+    figures = []
+    for transport in ("local", "zenoh"):
+        js = tmp_path / f"{transport}.json"
+        argv = ["eval", "kitti", "--data", str(root), "--seqs", "0000", "--json", str(js)]
+        out = tmp_path / transport
+        assert _run([*argv, "--transport", transport, "--results-dir", str(out)]) == 0
+        figures.append(json.loads(js.read_text()))
+    assert figures[0] == figures[1]
+    assert figures[0]["Car"]["TP"] > 0  # something was tracked and matched
 
 
 @pytest.mark.data

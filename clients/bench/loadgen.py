@@ -272,6 +272,9 @@ def _result(
         got = recv.recv_ns[:, w:]
         ok = got > 0
         latency_s = ((got - sent_ns[:, w:])[ok] * 1e-9).astype(np.float64)
+        # The worst frame of each tick: shows whether slow frames cluster in time (a stall
+        # of the whole server) or are spread out (per-frame cost).
+        per_tick = np.where(ok, (got - sent_ns[:, w:]) * 1e-6, 0.0).max(axis=0, initial=0.0)
         refused_window = int(recv.refused[:, w:].sum())
         return {
             "sent": int(sent_ns.size),
@@ -285,6 +288,7 @@ def _result(
             "window_refused": refused_window,
             "received_during_window": recv.in_window,
             "latency_s": latency_s.tolist(),
+            "worst_per_tick_ms": [round(float(v), 2) for v in per_tick],
             "put_lateness_s": (late_ns[:, w:].reshape(-1) * 1e-9).tolist(),
             "loadgen_cpu_s": cpu_s,
             "window_s": window_s,

@@ -188,7 +188,8 @@ def service_tables(doc: dict[str, Any]) -> str:
         f"{fmt(cap['first_failing_sensors'])}; first saturated: "
         f"{fmt(cap['first_saturated_sensors'])}",
         f"streams per core: {fmt(cap['streams_per_core'], 1)} (1 / (server CPU per frame x rate) "
-        f"at the largest passing step); goal >= {cap['goal_streams_per_core']:g}",
+        f"at {fmt(cap['streams_per_core_from_sensors'])} sensors, the busiest step that kept "
+        f"up); goal >= {cap['goal_streams_per_core']:g}",
     ]
     for s in doc["steps"]:
         prof = s.get("profile")
