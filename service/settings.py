@@ -142,6 +142,10 @@ class ServiceSettings(BaseSettings):
     shutdown_timeout_s: Seconds = Field(
         default=20.0, description="on SIGTERM, how long queued frames may take to drain"
     )
+    gil_switch_interval_ms: Annotated[float, Field(gt=0.0, le=100.0)] = Field(
+        default=1.0,
+        description="Python's thread switch interval: lower lets Zenoh's threads in sooner while a worker tracks (tail latency)",
+    )
     metrics_host: str = Field(
         default="127.0.0.1", description="bind address of /metrics, /healthz, /readyz"
     )

@@ -116,13 +116,14 @@ def test_core_on_real_data_reports_every_load_and_the_reference_ratio(tmp_path: 
     )
     assert rc == 0
     doc = json.loads(out.read_text())
-    assert set(doc["loads"]) == {"nuscenes", "kitti_car", "kitti_all"}
+    assert set(doc["loads"]) == {"nuscenes", "nuscenes_parity", "kitti_car", "kitti_all"}
     nu = doc["loads"]["nuscenes"]
     assert nu["classes"] == list(preset("nuscenes").class_names)
     assert nu["frames"] == nu["stages"]["frames"] > 0
     assert nu["stages"]["calls"]["nms"] == nu["frames"]
     assert doc["loads"]["kitti_all"]["classes"] == ["Car", "Pedestrian", "Cyclist"]
     assert doc["reference"]["nuscenes"]["median_speedup"] > 0
+    assert doc["reference"]["nuscenes_parity"]["median_speedup"] > 0
     assert doc["sweep"] is None
     assert is_png(tmp_path / "core_stages.png")
 

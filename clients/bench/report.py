@@ -58,11 +58,13 @@ def core_tables(doc: dict[str, Any]) -> str:
             out += ["stage shims not installed (the core changed): " + ", ".join(missing), ""]
     ref = doc["reference"]
     rows = []
-    if "nuscenes" in ref:
-        r = ref["nuscenes"]
+    for name in ("nuscenes", "nuscenes_parity"):
+        if name not in ref:
+            continue
+        r = ref[name]
         rows.append(
             [
-                "nuscenes",
+                name,
                 "median 350 ms, p99 1600 ms, 2.3 frames/s",
                 f"{r['median_speedup']}x",
                 f"{r['p99_speedup']}x",

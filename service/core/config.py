@@ -160,14 +160,35 @@ def _nuscenes() -> TrackerConfig:
 
 def _kitti() -> TrackerConfig:
     # Tuned on the 10 KITTI train sequences only, per class (docs/KITTI_TUNING.md).
-    car = ClassConfig(score_high=0.7, score_low=0.1, nms_iou=0.25, min_hits=3, max_age=2)
     return TrackerConfig(
         classes={
-            "Car": car,
-            "Pedestrian": car.model_copy(update={"score_high": 0.5}),
-            "Cyclist": car.model_copy(update={"score_high": 0.5}),
+            "Car": ClassConfig(
+                score_high=0.6,
+                score_low=0.1,
+                max_distance=1.25,
+                stage2_max_distance=1.25,
+                min_hits=6,
+                max_age=4,
+            ),
+            "Pedestrian": ClassConfig(
+                score_high=0.5,
+                score_low=0.4,
+                max_distance=1.6,
+                stage2_max_distance=1.25,
+                min_hits=3,
+                max_age=3,
+            ),
+            "Cyclist": ClassConfig(
+                score_high=0.4,
+                score_low=0.1,
+                max_distance=1.6,
+                stage2_max_distance=1.25,
+                min_hits=4,
+                max_age=2,
+            ),
         },
         output=OutputPolicy.REFERENCE,
+        coast_score_decay=0.01,
     )
 
 
