@@ -76,12 +76,25 @@ class Tracker:
             if key
             else np.full(len(dets), self.config.non_key.score_high)
         )
-        cand = np.flatnonzero(dets.score >= high)
-        matched_det, matched_trk, unmatched_det = self._stage1(dets, cand, tr.cls, pred_box, p_pred)
+        is_high = dets.score >= high
+        # Stage 2: detections over the low threshold (classes with two-stage association).
+        if key:
+            is_low = (dets.score > self._score_low[dets.cls]) & self._two_stage[dets.cls]
+        else:
+            is_low = dets.score > self.config.non_key.score_low
+        # One distance table for both stages: the candidates of either against every track.
+        pool = np.flatnonzero(is_high | is_low)
+        table = self._distance_table(dets.params[pool], dets.cls[pool], tr.cls, pred_box, p_pred)
+        row = np.full(len(dets), -1, dtype=np.int64)
+        row[pool] = np.arange(pool.size)
 
+        cand = np.flatnonzero(is_high)
+        matched_det, matched_trk, unmatched_det = self._stage1(
+            dets.cls, cand, row[cand], tr.cls, table
+        )
         update = np.full(len(tr), UpdateKind.COASTED, dtype=np.int8)
         update[matched_trk] = UpdateKind.MATCHED
-        extended = self._stage2(dets, tr.cls, pred_box, p_pred, update, key)
+        extended = self._stage2(row[is_low], tr.cls, table, update, key)
         update[extended] = UpdateKind.EXTENDED
 
         # Filter corrections: matched with their detection, extended with their own prediction.
@@ -152,24 +165,24 @@ class Tracker:
             return self._kf.predict(tr.x, tr.p, dt)
         return self._cv.predict(tr.x, dt), tr.p
 
-    def _pair_distances(
+    def _distance_table(
         self,
         d_params: F64,
         d_cls: npt.NDArray[np.int32],
         t_cls: npt.NDArray[np.int32],
         pred: F64,
         p_pred: F64,
-    ) -> tuple[I64, I64, F64]:
-        """Distances of every same-class (detection, track) pair, all classes in one call per
-        metric; pairs in row-major order (detections in the given order, tracks ascending)."""
+    ) -> F64:
+        """(detections, tracks) distances: every same-class pair computed, all classes in one
+        call per metric; pairs of different classes are +inf (they never match)."""
+        table = np.full((d_cls.size, t_cls.size), np.inf)
         ia, ib = np.nonzero(d_cls[:, None] == t_cls[None, :])
-        dist = np.empty(ia.size)
         pair_metric = self._metric_code[d_cls[ia]]
         for m in np.unique(pair_metric).tolist():
             metric = _METRICS[m]
             sel = np.flatnonzero(pair_metric == m)
             innovation = self._kf.innovation(p_pred) if metric is Metric.MAHALANOBIS else None
-            dist[sel] = geometry.distance_pairs(
+            table[ia[sel], ib[sel]] = geometry.distance_pairs(
                 metric,
                 d_params,
                 pred,
@@ -178,24 +191,28 @@ class Tracker:
                 vertical=self.config.vertical_overlap,
                 innovation=innovation,
             )
-        return ia.astype(np.int64), ib.astype(np.int64), dist
+        return table
 
     def _stage1(
-        self, dets: Boxes, cand: I64, trk_cls: npt.NDArray[np.int32], pred: F64, p_pred: F64
+        self,
+        det_cls: npt.NDArray[np.int32],
+        cand: I64,
+        cand_rows: I64,
+        trk_cls: npt.NDArray[np.int32],
+        table: F64,
     ) -> tuple[I64, I64, I64]:
         """Class by class (a detection never matches a track of another class)."""
-        d_cls = dets.cls[cand]
-        ia, _, dist = self._pair_distances(dets.params[cand], d_cls, trk_cls, pred, p_pred)
-        pair_cls = d_cls[ia]
+        d_cls = det_cls[cand]
         md: list[I64] = []
         mt: list[I64] = []
         um: list[I64] = []
         for code in np.unique(np.concatenate([d_cls, trk_cls])).tolist():
             c = self.config.for_code(code)
-            d_idx = cand[d_cls == code]
+            in_class = d_cls == code
             t_idx = np.flatnonzero(trk_cls == code)
-            block = dist[pair_cls == code].reshape(d_idx.size, t_idx.size)
+            block = table[np.ix_(cand_rows[in_class], t_idx)]
             a: Assignment = assign(block, c.max_distance, c.matcher)
+            d_idx = cand[in_class]
             md.append(d_idx[a.det])
             mt.append(t_idx[a.track])
             um.append(d_idx[a.unmatched_dets])
@@ -208,10 +225,9 @@ class Tracker:
 
     def _stage2(
         self,
-        dets: Boxes,
+        low_rows: I64,
         trk_cls: npt.NDArray[np.int32],
-        pred: F64,
-        p_pred: F64,
+        table: F64,
         update: npt.NDArray[np.int8],
         key: bool,
     ) -> I64:
@@ -220,18 +236,11 @@ class Tracker:
         eligible = update == UpdateKind.COASTED
         if key:
             eligible &= self._two_stage[trk_cls]
-            low = self._score_low[dets.cls]
-        else:
-            low = np.full(len(dets), self.config.non_key.score_low)
         t_idx = np.flatnonzero(eligible)
-        d_idx = np.flatnonzero(dets.score > low)
-        if t_idx.size == 0 or d_idx.size == 0:
+        if t_idx.size == 0 or low_rows.size == 0:
             return np.zeros(0, dtype=np.int64)
-        _, ib, dist = self._pair_distances(
-            dets.params[d_idx], dets.cls[d_idx], trk_cls[t_idx], pred[t_idx], p_pred[t_idx]
-        )
-        agree = dist <= self._stage2_max[trk_cls[t_idx[ib]]]
-        return np.unique(t_idx[ib[agree]]).astype(np.int64)
+        near = table[np.ix_(low_rows, t_idx)] <= self._stage2_max[trk_cls[t_idx]]
+        return t_idx[near.any(axis=0)].astype(np.int64)
 
     def _transition(
         self,
