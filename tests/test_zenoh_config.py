@@ -27,7 +27,7 @@ def test_a_config_file_is_the_base_and_given_options_override_it(tmp_path: Path)
     f = _file(
         tmp_path,
         '{mode: "peer", listen: {endpoints: ["tcp/127.0.0.1:0"]},'
-        ' scouting: {multicast: {enabled: false}}}',
+        " scouting: {multicast: {enabled: false}}}",
     )
     c = ZenohOptions(config_file=f).to_config()
     assert c.get_json("listen/endpoints") == '["tcp/127.0.0.1:0"]'
