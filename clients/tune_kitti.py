@@ -14,20 +14,25 @@ in-process; result files go to a private temporary folder because that evaluator
     # every knob of the current preset one step either way (the plateau check)
     .venv/bin/python -m clients.tune_kitti --cls Car --neighbours
 
-    # the same on the first 5 sequences only (tune on 5, check on the other 5)
-    .venv/bin/python -m clients.tune_kitti --cls Car --seqs 0000,0002,0003,0004,0005 ...
+    # the same grid on 5 sequences only (tune on 5, check the pick on the other 5)
+    .venv/bin/python -m clients.tune_kitti --cls Car --seqs 0000,0003,0009,0017,0020 ...
 
 Only ``ClassConfig`` fields go to ``--set`` (per class), only ``TrackerConfig`` fields to
 ``--top`` (every class). Combinations the config rejects (e.g. score_low > score_high) are
-reported and skipped.
+reported and skipped. PASS means the acceptance bar of issue 2 (meaningful on all 10
+sequences only). Each row also shows an "unchained" sAMOTA / MOTA: the same figures without
+the evaluator's float-rounding lottery (see ``_UnchainedEvaluation``), to tell a real
+plateau from a lucky or unlucky rounding.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import itertools
 import multiprocessing as mp
+import os
 import sys
 import tempfile
 import time
@@ -40,6 +45,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import ValidationError
 
+from clients.commands.eval import track_sequence
 from clients.kitti_eval import (
     NO_THRESHOLD,
     RECALL_POINTS,
@@ -61,7 +67,6 @@ from clients.kitti_io import (
     write_results,
 )
 from service.core.config import TrackerConfig, preset
-from service.core.types import Frame
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "kitti"
 
@@ -84,6 +89,12 @@ STEPS: dict[str, Sequence[Any]] = {
 }
 
 
+CSV_COLUMNS = (
+    "cls", "seqs", "settings", "sAMOTA", "MOTA", "IDS", "FP", "FN", "pass",
+    "sAMOTA_unchained", "MOTA_unchained",
+)  # fmt: skip
+
+
 def passes(cls: str, figures: dict[str, float]) -> bool:
     bar = BAR[cls]
     return (
@@ -99,9 +110,9 @@ class _Data:
     """Per-process cache: detections as tracker frames and calibrations, by (class, seq)."""
 
     root: Path
+    workdir: Path  # this process's result files, overwritten by every evaluation
     frames: dict[tuple[str, str], list[SequenceFrame]] = field(default_factory=dict)
     calibs: dict[str, Calib] = field(default_factory=dict)
-    workdir: Path | None = None
 
     def get(self, config: TrackerConfig, cls: str, seq: str) -> list[SequenceFrame]:
         key = (cls, seq)
@@ -114,18 +125,13 @@ class _Data:
             self.calibs[seq] = read_calib(self.root / "calib" / f"{seq}.txt")
         return self.calibs[seq]
 
-    def out(self) -> Path:
-        if self.workdir is None:
-            self.workdir = Path(tempfile.mkdtemp(prefix="tune_kitti_"))
-        return self.workdir
-
 
 _DATA: _Data | None = None
 
 
-def _init(root: Path) -> None:
+def _init(root: Path, scratch: Path) -> None:
     global _DATA
-    _DATA = _Data(root)
+    _DATA = _Data(root, scratch / str(os.getpid()))
 
 
 class _UnchainedEvaluation(ClassEvaluation):
@@ -161,18 +167,16 @@ def evaluate_config(
     config: TrackerConfig, cls: str, seqs: Sequence[str], data: _Data
 ) -> dict[str, float]:
     """Every figure of ``cls`` on ``seqs`` for ``config`` (the eval command's numbers)."""
-    from service.core.tracker import Tracker
-
     code = config_class_code(config, cls)
     names = list(config.class_names)
     names[code] = cls
-    out = data.out()
+    out = data.workdir
     for seq in seqs:
         frames = data.get(config, cls, seq)
-        tracker = Tracker(config)
+        outputs = track_sequence(frames, config)
         rows = ResultRows.concat(
             tracks_to_rows(f.index, t.ids, t.boxes, names)
-            for f, t in ((f, tracker.step(Frame(boxes=f.boxes, stamp=f.stamp))) for f in frames)
+            for f, t in zip(frames, outputs, strict=True)
         )
         write_results(out, seq, rows, data.calib(seq))
     problem = build_problem(data.root / "labels", out / "data_0", seqs, cls)
@@ -253,18 +257,42 @@ def main(argv: Sequence[str] | None = None) -> int:
         epilog=__doc__.split("\n\n", 1)[1] if __doc__ else None,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--cls", required=True, choices=KITTI_CLASSES)
+    parser.add_argument("--cls", required=True, choices=KITTI_CLASSES, help="class to sweep")
     parser.add_argument(
         "--data", type=Path, default=DATA, help="KITTI folder (default: %(default)s)"
     )
-    parser.add_argument("--seqs", default=",".join(TRAIN_SEQUENCES), help="comma-separated")
+    parser.add_argument(
+        "--seqs",
+        default=",".join(TRAIN_SEQUENCES),
+        help="comma-separated sequences (default: the 10 train sequences)",
+    )
     parser.add_argument("--base", default="kitti", help="preset to start from (default: kitti)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2")
-    parser.add_argument("--top", action="append", default=[], metavar="KEY=V1,V2")
-    parser.add_argument("--neighbours", action="store_true", help="one step around the preset")
-    parser.add_argument("--jobs", type=int, default=2, help="worker processes (default: 2)")
-    parser.add_argument("--csv", type=Path, help="append one row per evaluation")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2",
+        help="values of a per-class field (ClassConfig) of --cls; repeat for a grid",
+    )
+    parser.add_argument(
+        "--top",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2",
+        help="values of a top-level field (TrackerConfig), e.g. output, coast_score_decay",
+    )
+    parser.add_argument(
+        "--neighbours",
+        action="store_true",
+        help="instead of a grid: every knob of the preset one step down and up",
+    )
+    parser.add_argument(
+        "--jobs", type=int, default=2, help="worker processes (default: 2; the machine is shared)"
+    )
+    parser.add_argument("--csv", type=Path, help="append one row per evaluation to this file")
     args = parser.parse_args(argv)
+    if not (args.data / "labels").is_dir():
+        parser.error(f"no KITTI labels in {args.data}")
 
     seqs = tuple(s.strip() for s in args.seqs.split(",") if s.strip())
     if args.neighbours:
@@ -279,48 +307,57 @@ def main(argv: Sequence[str] | None = None) -> int:
         ]
     print(f"{len(jobs)} evaluation(s) of {args.cls} on {len(seqs)} sequence(s)", flush=True)
 
-    writer = None
-    if args.csv is not None:
-        args.csv.parent.mkdir(parents=True, exist_ok=True)
-        new = not args.csv.exists()
-        handle = args.csv.open("a", newline="")
-        writer = csv.writer(handle)
-        if new:
-            writer.writerow(
-                ["cls", "seqs", "settings", "sAMOTA", "MOTA", "IDS", "FP", "FN", "pass"]
-            )
+    with contextlib.ExitStack() as stack:
+        writer = None
+        if args.csv is not None:
+            args.csv.parent.mkdir(parents=True, exist_ok=True)
+            new = not args.csv.exists()
+            handle = stack.enter_context(args.csv.open("a", newline=""))
+            writer = csv.writer(handle, lineterminator="\n")
+            if new:
+                writer.writerow(CSV_COLUMNS)
+        scratch = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="tune_kitti_")))
+        ctx = mp.get_context("spawn")
+        pool = stack.enter_context(
+            ctx.Pool(max(1, args.jobs), initializer=_init, initargs=(args.data, scratch))
+        )
+        rows = _sweep(pool, jobs, seqs, writer)
+    return 0 if rows else 1
+
+
+def _sweep(
+    pool: Any, jobs: list[Job], seqs: tuple[str, ...], writer: Any
+) -> list[tuple[Job, dict[str, float]]]:
+    """Run the jobs, print (and write) each result as it comes, then the best ten."""
     started = time.perf_counter()
     rows: list[tuple[Job, dict[str, float]]] = []
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(max(1, args.jobs), initializer=_init, initargs=(args.data,)) as pool:
-        for job, res in pool.imap(run_job, jobs):
-            if isinstance(res, str):
-                print(f"  skip {_describe(job)}: {res}", flush=True)
-                continue
-            ok = passes(job.cls, res)
-            rows.append((job, res))
-            print(
-                f"  {res['sAMOTA']:6.2f} {res['MOTA']:6.2f} IDS {int(res['IDS']):2d}"
-                f" {'PASS' if ok else '    '}  (unchained {res['sAMOTA_u']:6.2f}"
-                f" {res['MOTA_u']:6.2f})  {_describe(job)}",
-                flush=True,
-            )
-            if writer is not None:
-                writer.writerow(
-                    [
-                        job.cls, " ".join(seqs), _describe(job), f"{res['sAMOTA']:.3f}",
-                        f"{res['MOTA']:.3f}", int(res["IDS"]), int(res["FP"]), int(res["FN"]), ok,
-                        f"{res['sAMOTA_u']:.3f}", f"{res['MOTA_u']:.3f}",
-                    ]
-                )  # fmt: skip
-                handle.flush()
+    for job, res in pool.imap(run_job, jobs):
+        if isinstance(res, str):
+            print(f"  skip {_describe(job)}: {res}", flush=True)
+            continue
+        ok = passes(job.cls, res)
+        rows.append((job, res))
+        print(
+            f"  {res['sAMOTA']:6.2f} {res['MOTA']:6.2f} IDS {int(res['IDS']):2d}"
+            f" {'PASS' if ok else '    '}  (unchained {res['sAMOTA_u']:6.2f}"
+            f" {res['MOTA_u']:6.2f})  {_describe(job)}",
+            flush=True,
+        )
+        if writer is not None:
+            writer.writerow(
+                [
+                    job.cls, " ".join(seqs), _describe(job), f"{res['sAMOTA']:.3f}",
+                    f"{res['MOTA']:.3f}", int(res["IDS"]), int(res["FP"]), int(res["FN"]), ok,
+                    f"{res['sAMOTA_u']:.3f}", f"{res['MOTA_u']:.3f}",
+                ]
+            )  # fmt: skip
     print(f"done in {time.perf_counter() - started:.0f} s; best by sAMOTA:")
     for job, res in sorted(rows, key=lambda r: -r[1]["sAMOTA"])[:10]:
         print(
             f"  {res['sAMOTA']:6.2f} {res['MOTA']:6.2f} IDS {int(res['IDS']):2d}"
             f"  (unchained {res['sAMOTA_u']:6.2f})  {_describe(job)}"
         )
-    return 0
+    return rows
 
 
 if __name__ == "__main__":
