@@ -174,10 +174,28 @@ def _wait(pred: Callable[[], bool], timeout_s: float, what: str) -> None:
         time.sleep(0.01)
 
 
-def _free_port() -> int:
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def serve_command(endpoint: str, metrics_port: int, instance: str, *extra: str) -> list[str]:
+    """``simpletrack serve`` with this interpreter, listening on ``endpoint`` only."""
+    return [
+        sys.executable,
+        "-m",
+        "service.cli",
+        "serve",
+        "--listen",
+        endpoint,
+        "--metrics-port",
+        str(metrics_port),
+        "--instance",
+        instance,
+        *extra,
+    ]
 
 
 def _port_open(endpoint: str) -> bool:
@@ -192,27 +210,20 @@ def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator
     """Run ``simpletrack serve --preset PRESET`` on a free loopback port for the duration of
     the block (lossless backpressure, no metrics port, no state directory); yields its
     endpoint. Stopped with SIGTERM."""
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     instance = f"eval-{os.getpid()}"
-    cmd = [
-        sys.executable,
-        "-m",
-        "service.cli",
-        "serve",
-        "--listen",
+    cmd = serve_command(
         endpoint,
-        "--metrics-port",
-        "0",
+        0,
+        instance,
         "--preset",
         preset,
-        "--instance",
-        instance,
         "--backpressure",
         "block",
         "--log-level",
         "warning",
         *extra,
-    ]
+    )
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log)
         try:

@@ -11,9 +11,7 @@ import contextlib
 import json
 import os
 import signal
-import socket
 import subprocess
-import sys
 import threading
 import time
 import urllib.error
@@ -37,16 +35,11 @@ from schemas import (
     encode_detection_frame,
 )
 from service.keys import Keys
+from service.remote import free_port, serve_command
 from service.zenoh_config import open_session
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def wait_for(pred: Callable[[], bool], timeout: float, what: str = "condition") -> None:
@@ -117,19 +110,7 @@ def start_service(
     metrics_port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     log_path = tmp / f"{instance}-{port}.log"
-    cmd = [
-        sys.executable,
-        "-m",
-        "service.cli",
-        "serve",
-        "--listen",
-        endpoint,
-        "--metrics-port",
-        str(metrics_port),
-        "--instance",
-        instance,
-        *args,
-    ]
+    cmd = serve_command(endpoint, metrics_port, instance, *args)
     full_env = {**os.environ, "SIMPLETRACK_LOG_FORMAT": "json", "NO_COLOR": "1", **(env or {})}
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(cmd, cwd=ROOT, env=full_env, stdout=log, stderr=log)

@@ -23,7 +23,6 @@ import multiprocessing
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -40,6 +39,7 @@ import numpy as np
 
 from clients.bench import loadgen
 from clients.bench.stats import cdf_ms, summary_ms
+from service.remote import free_port, serve_command
 
 ROOT = Path(__file__).resolve().parents[2]
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -74,12 +74,6 @@ class ServiceBenchOptions:
 
 
 # ----------------------------------------------------------------------------- processes
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def cpu_seconds(pid: int) -> float:
     """utime + stime of every thread of ``pid`` (fields 14 and 15 of /proc/<pid>/stat)."""
     text = Path(f"/proc/{pid}/stat").read_text()
@@ -138,16 +132,9 @@ def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
     port, metrics_port = free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     log = tmp / f"serve-{port}.log"
-    cmd = [
-        sys.executable,
-        "-m",
-        "service.cli",
-        "serve",
-        "--listen",
+    cmd = serve_command(
         endpoint,
-        "--metrics-port",
-        str(metrics_port),
-        "--instance",
+        metrics_port,
         "bench",
         "--prefix",
         PREFIX,
@@ -157,7 +144,7 @@ def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
         str(opts.workers),
         "--log-level",
         "error",
-    ]
+    )
     env = {
         **os.environ,
         "NO_COLOR": "1",
