@@ -280,6 +280,17 @@ class ResultRows:
             score=np.concatenate([p.score for p in items]),
         )
 
+    def by_frame(self) -> ResultRows:
+        """The rows sorted by frame (stable: a frame's rows keep their order)."""
+        order = np.argsort(self.frame, kind="stable")
+        return ResultRows(
+            frame=self.frame[order],
+            track_id=self.track_id[order],
+            type_name=tuple(self.type_name[i] for i in order),
+            cam=self.cam[order],
+            score=self.score[order],
+        )
+
 
 def tracks_to_rows(frame: int, ids: I64, boxes: Boxes, class_names: Sequence[str]) -> ResultRows:
     """A frame's tracker output (z-up boxes, probabilities) as result rows."""
@@ -306,14 +317,7 @@ def format_results(rows: ResultRows, calib: Calib) -> str:
 
 def write_results(out_dir: Path, seq: str, rows: ResultRows, calib: Calib) -> Path:
     """``out_dir/data_0/<seq>.txt`` (all classes of the sequence, sorted by frame)."""
-    order = np.argsort(rows.frame, kind="stable")
-    ordered = ResultRows(
-        frame=rows.frame[order],
-        track_id=rows.track_id[order],
-        type_name=tuple(rows.type_name[i] for i in order),
-        cam=rows.cam[order],
-        score=rows.score[order],
-    )
+    ordered = rows.by_frame()
     path = out_dir / "data_0" / f"{seq}.txt"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(format_results(ordered, calib))

@@ -23,6 +23,7 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 
 from clients.track_files import FrameBoxes, Sequence
+from service.core.geometry import bev_corners
 
 F64 = npt.NDArray[np.float64]
 
@@ -51,23 +52,11 @@ def id_colour(track_id: int) -> tuple[float, float, float]:
     return colorsys.hsv_to_rgb(hue, sat, 0.85)
 
 
-def corners(params: F64) -> F64:
-    """(N, 4, 2) BEV corners of z-up boxes (x, y, z, yaw, l, w, h)."""
-    x, y, yaw = params[:, 0], params[:, 1], params[:, 3]
-    length, width = params[:, 4], params[:, 5]
-    c, s = np.cos(yaw), np.sin(yaw)
-    dl = np.array([1, 1, -1, -1]) * 0.5
-    dw = np.array([1, -1, -1, 1]) * 0.5
-    cx = x[:, None] + dl * (length * c)[:, None] - dw * (width * s)[:, None]
-    cy = y[:, None] + dl * (length * s)[:, None] + dw * (width * c)[:, None]
-    return np.stack([cx, cy], axis=2)
-
-
 def extent(layers: Iterable[Sequence], frames: Iterable[int], margin: float) -> tuple[F64, F64]:
     """(xmin, xmax), (ymin, ymax) covering every box of the given frames, plus a margin."""
     wanted = set(frames)
     pts = [
-        corners(fb.params).reshape(-1, 2)
+        bev_corners(fb.params).reshape(-1, 2)
         for layer in layers
         for k, fb in layer.items()
         if k in wanted and len(fb)
@@ -121,7 +110,7 @@ def draw_frame(
     if detections is not None and len(detections):
         ax.add_collection(
             PolyCollection(
-                list(corners(detections.params)),
+                list(bev_corners(detections.params)),
                 facecolors="none",
                 edgecolors="0.55",
                 linewidths=0.7,
@@ -131,7 +120,7 @@ def draw_frame(
     if truth is not None and len(truth):
         ax.add_collection(
             PolyCollection(
-                list(corners(truth.params)),
+                list(bev_corners(truth.params)),
                 facecolors="none",
                 edgecolors="black",
                 linewidths=1.0,
@@ -143,7 +132,7 @@ def draw_frame(
         colours = [id_colour(int(i)) for i in tracks.ids]
         ax.add_collection(
             PolyCollection(
-                list(corners(tracks.params)),
+                list(bev_corners(tracks.params)),
                 facecolors=[(*c, 0.35) for c in colours],
                 edgecolors=colours,
                 linewidths=1.4,
@@ -332,7 +321,7 @@ def save_overview(
         lived = np.array([len(paths[i]) >= 5 for i in ids])
         ax.add_collection(
             PolyCollection(
-                list(corners(ends)),
+                list(bev_corners(ends)),
                 facecolors=[(*c, 0.4 if ok else 0.1) for c, ok in zip(colours, lived, strict=True)],
                 edgecolors=[(*c, 1.0 if ok else 0.3) for c, ok in zip(colours, lived, strict=True)],
                 zorder=3,

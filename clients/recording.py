@@ -161,14 +161,7 @@ class KittiWriter:
         for name, parts in self._rows.items():
             rows = ResultRows.concat(parts)
             self._rows[name] = [rows]
-            order = np.argsort(rows.frame, kind="stable")
-            ordered = ResultRows(
-                frame=rows.frame[order],
-                track_id=rows.track_id[order],
-                type_name=tuple(rows.type_name[i] for i in order),
-                cam=rows.cam[order],
-                score=rows.score[order],
-            )
+            ordered = rows.by_frame()
             path = self.out_dir / "data_0" / f"{name}.txt"
             path.parent.mkdir(parents=True, exist_ok=True)
             calib = self._calib.get(name)
