@@ -6,7 +6,7 @@ PY="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
-extras="test,plot"
+extras="service,plot,test"
 if [ "${CI:-}" = "true" ]; then extras="$extras,deploy-lint"; fi
 stamp=.venv/.installed-${extras//,/-}
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then

@@ -24,7 +24,9 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from schemas import (
+from simpletrack.session import open_session
+from simpletrack.spawn import free_port, serve_command
+from simpletrack.wire import (
     BoxArrays,
     FrameError,
     Rejection,
@@ -34,9 +36,7 @@ from schemas import (
     decode_track_frame,
     encode_detection_frame,
 )
-from service.keys import Keys
-from service.remote import free_port, serve_command
-from service.zenoh_config import open_session
+from simpletrack.wire.keys import Keys
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

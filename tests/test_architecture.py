@@ -1,53 +1,138 @@
-"""The import rules of docs/ARCHITECTURE.md: the core is pure; nothing of the service
-imports the clients."""
+"""The import rules of docs/ARCHITECTURE.md, read from every import statement of the package
+(top-level or inside a function), and the light imports checked in a fresh interpreter."""
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+SOURCES = [ROOT / "service", ROOT / "schemas", ROOT / "clients"]
+
 # What the pure core may import: numerics, serialisation, validation, and plain stdlib.
 CORE_ALLOWED = {
-    "numpy", "scipy", "msgpack", "pydantic", "service",  # service.core only, checked below
-    "__future__", "dataclasses", "enum", "typing", "collections",
+    "numpy", "scipy", "msgpack", "pydantic",
+    "__future__", "dataclasses", "enum", "typing", "collections", "functools", "hashlib",
 }  # fmt: skip
 
+# Layer -> the simpletrack layers it may import (itself always). Tools may import anything
+# below the CLI; nothing below the tools may import a tool.
+TOOLS = {"datasets", "eval", "sim", "bench", "plot", "spawn"}
+MAY_IMPORT: dict[str, set[str]] = {
+    "core": set(),
+    "wire": {"core"},  # only wire/convert.py, checked below
+    "session": set(),
+    "client": {"wire", "session"},
+    "server": {"core", "wire", "session"},
+    "datasets": {"core", "wire"},
+    "eval": {"core", "wire", "session", "datasets", "spawn", "server"},
+    "spawn": {"core", "wire", "session", "server"},
+    "sim": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server"},
+    "bench": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server", "sim"},
+    "plot": {"core", "datasets"},
+    "cli": {"core", "wire", "session", "client", "server", *TOOLS},
+}
 
-def _imports(package: str) -> Iterator[tuple[Path, str]]:
-    for path in sorted((ROOT / package).rglob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Import):
-                yield from ((path, a.name) for a in node.names)
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                yield path, node.module
+
+def _layer(path: Path) -> str:
+    rel = next(path.relative_to(s / "simpletrack") for s in SOURCES if path.is_relative_to(s))
+    return rel.parts[0].removesuffix(".py")
+
+
+def _modules() -> Iterator[Path]:
+    for source in SOURCES:
+        yield from sorted((source / "simpletrack").rglob("*.py"))
+
+
+def _imports(path: Path) -> Iterator[str]:
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            yield from (a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            assert node.level == 0, f"{path}: relative import"
+            if node.module == "simpletrack":  # from simpletrack import plot
+                yield from (f"simpletrack.{a.name}" for a in node.names)
+            else:
+                yield node.module
+
+
+def _edges() -> Iterator[tuple[Path, str, str]]:
+    for path in _modules():
+        for module in _imports(path):
+            parts = module.split(".")
+            if parts[0] == "simpletrack":
+                assert len(parts) > 1, f"{path}: import of the bare namespace"
+                yield path, _layer(path), parts[1]
+
+
+def test_every_module_belongs_to_a_known_layer() -> None:
+    layers = {_layer(p) for p in _modules()}
+    assert layers == set(MAY_IMPORT), layers ^ set(MAY_IMPORT)
+
+
+def test_layers_import_only_what_they_may() -> None:
+    bad = [
+        f"{p.relative_to(ROOT)}: {src} imports {dst}"
+        for p, src, dst in _edges()
+        if dst != src and dst not in MAY_IMPORT[src]
+    ]
+    assert not bad, bad
+
+
+def test_only_the_adapter_joins_wire_and_core() -> None:
+    bad = [
+        str(p.relative_to(ROOT))
+        for p, src, dst in _edges()
+        if src == "wire" and dst == "core" and p.name != "convert.py"
+    ]
+    assert not bad, bad
 
 
 def test_the_core_is_pure() -> None:
+    core = ROOT / "service" / "simpletrack" / "core"
     bad = [
         f"{p.relative_to(ROOT)}: {m}"
-        for p, m in _imports("service/core")
-        if m.split(".")[0] not in CORE_ALLOWED
-        or (m.startswith("service") and not m.startswith("service.core"))
+        for p in sorted(core.rglob("*.py"))
+        for m in _imports(p)
+        if m.split(".")[0] not in CORE_ALLOWED and not m.startswith("simpletrack.core")
     ]
     assert not bad, bad
 
 
-def test_service_and_schemas_never_import_clients() -> None:
-    bad = [
-        f"{p.relative_to(ROOT)}: {m}"
-        for pkg in ("service", "schemas")
-        for p, m in _imports(pkg)
-        if m.split(".")[0] == "clients"
-    ]
-    assert not bad, bad
+def test_the_cli_registers_every_command_module() -> None:
+    cli = ROOT / "service" / "simpletrack" / "cli"
+    registered = {m for m in _imports(cli / "main.py") if m.startswith("simpletrack.cli.")}
+    commands = {
+        f"simpletrack.cli.{p.stem}" for p in cli.glob("*.py") if "def register(" in p.read_text()
+    }
+    assert commands and registered >= commands, commands - registered
 
 
-def test_schemas_use_only_the_cores_box_types_from_the_service() -> None:
-    bad = [
-        f"{p.relative_to(ROOT)}: {m}"
-        for p, m in _imports("schemas")
-        if m.startswith("service") and not m.startswith("service.core")
-    ]
-    assert not bad, bad
+def _loaded_after(statement: str) -> set[str]:
+    code = f"import sys; {statement}; print(' '.join(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return set(out.stdout.split())
+
+
+@pytest.mark.parametrize(
+    ("statement", "absent"),
+    [
+        (
+            "import simpletrack.core; simpletrack.core.Tracker",
+            {"zenoh", "prometheus_client", "pydantic_settings", "simpletrack.wire"},
+        ),
+        (
+            "import simpletrack.client",
+            {"scipy", "prometheus_client", "pydantic_settings", "simpletrack.core", "yaml"},
+        ),
+        ("import simpletrack.wire", {"zenoh", "scipy", "simpletrack.core"}),
+    ],
+)
+def test_light_imports_stay_light(statement: str, absent: set[str]) -> None:
+    loaded = _loaded_after(statement)
+    assert not absent & loaded, absent & loaded

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clients.plot import id_colour
-from service.cli import main
+from simpletrack.cli.main import main
+from simpletrack.plot import id_colour
 
 FRAMES = 12
 

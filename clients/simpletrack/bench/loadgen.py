@@ -1,0 +1,339 @@
+"""The load generator of ``simpletrack bench service``: S sensors publishing detection frames at
+a fixed rate, and the planner-side subscriber that times the track frames coming back.
+
+It runs in its own process (started with multiprocessing's ``spawn``: never fork after
+``zenoh.open``), with one Zenoh session for the publishers and the subscriber, so a frame's
+latency is two readings of ONE clock, ``time.monotonic_ns()``: just before the publisher's
+``put``, and on the subscriber's receipt of the track frame with the same sensor and ``seq``.
+
+Protocol with the parent over a ``Connection``: child sends ``("ready", info)``, waits for
+``"go"``, sends ``("start", t)`` when the warm-up ends and ``("end", t)`` after the last put,
+then ``("result", dict)`` once every answer arrived or ``drain_s`` passed.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import zenoh
+
+from simpletrack.datasets.kitti import camera_to_tracker
+from simpletrack.datasets.nuscenes import TYPE_NAMES, scene_files
+from simpletrack.session import open_session
+from simpletrack.wire import BoxArrays
+from simpletrack.wire.codec import pack
+from simpletrack.wire.models import BoxColumns
+from simpletrack.wire.reasons import SCHEMA_VERSION
+
+# Every class the detector reports, as it reports them: the service drops the untracked ones.
+ALL_CLASSES = tuple(TYPE_NAMES[t] for t in sorted(TYPE_NAMES))
+UNTRACKED = ("construction_vehicle", "barrier", "traffic_cone")  # not in the nuscenes preset
+FRAME_ID = "lidar"
+SYNTHETIC_FRAMES = 20  # frames per synthetic stream before it cycles
+
+
+@dataclass(frozen=True, slots=True)
+class LoadSpec:
+    endpoint: str
+    prefix: str
+    vehicle: str
+    sensors: int
+    rate_hz: float
+    warmup_s: float
+    seconds: float
+    drain_s: float
+    source: str  # "nuscenes" (real frames from `data`) or "synthetic"
+    data: str  # the nuScenes centerpoint_val directory
+    synthetic_boxes: int
+
+    @property
+    def ticks(self) -> int:
+        return math.ceil((self.warmup_s + self.seconds) * self.rate_hz)
+
+    @property
+    def warm_ticks(self) -> int:
+        return math.ceil(self.warmup_s * self.rate_hz)
+
+
+def sensor_name(i: int) -> str:
+    return f"s{i:04d}"
+
+
+# ----------------------------------------------------------------------------- frames
+def scene_box_arrays(path: Path) -> list[BoxArrays]:
+    """Every frame of a nuScenes detection file, every class, as the wire's box columns."""
+    raw = np.loadtxt(path, delimiter=",", ndmin=2)
+    frame = raw[:, 0].astype(np.int64)
+    params = camera_to_tracker(raw[:, 7:14]).astype(np.float32)
+    order = np.argsort(frame, kind="stable")
+    raw, frame, params = raw[order], frame[order], params[order]
+    bounds = np.searchsorted(frame, np.arange(int(frame.max()) + 2))
+    out = []
+    for k in range(int(frame.max()) + 1):
+        rows = slice(bounds[k], bounds[k + 1])
+        out.append(
+            BoxArrays(
+                classes=ALL_CLASSES,
+                class_index=raw[rows, 1].astype(np.int32) - 1,
+                center=params[rows, 0:3],
+                size=params[rows, 4:7],
+                yaw=params[rows, 3],
+                score=raw[rows, 6].copy(),
+            )
+        )
+    return out
+
+
+def synthetic_box_arrays(n: int, seed: int) -> list[BoxArrays]:
+    from simpletrack.bench.core import synthetic_stream  # the sweep's moving grid of cars
+
+    out = []
+    for f in synthetic_stream(n, SYNTHETIC_FRAMES, seed=seed):
+        p = f.boxes.params.astype(np.float32)
+        out.append(
+            BoxArrays(
+                classes=("car",),
+                class_index=np.zeros(n, np.int32),
+                center=p[:, 0:3],
+                size=p[:, 4:7],
+                yaw=p[:, 3],
+                score=f.boxes.score.copy(),
+            )
+        )
+    return out
+
+
+def box_columns(boxes: BoxArrays) -> dict[str, Any]:
+    """The ``boxes`` map of a DetectionFrame, built once per frame and reused on every send."""
+    return BoxColumns.from_box_arrays(boxes).model_dump(mode="python", exclude_none=True)
+
+
+def detection_payload(
+    vehicle: str, sensor: str, seq: int, stamp_ns: int, columns: dict[str, Any]
+) -> bytes:
+    """Byte for byte ``schemas.encode_detection_frame`` (a test checks), minus re-encoding the
+    box columns on every send: at 5000 frames/s that cost would be the load generator's."""
+    return pack(
+        {
+            "schema_version": SCHEMA_VERSION,
+            "vehicle": vehicle,
+            "sensor": sensor,
+            "seq": seq,
+            "stamp_ns": stamp_ns,
+            "frame_id": FRAME_ID,
+            "key_frame": True,
+            "boxes": columns,
+        }
+    )
+
+
+def peek(payload: bytes, field: str) -> Any:
+    """One top-level field of a msgpack map without unpacking the (large) columns: the
+    header fields come first in every message of the schema."""
+    unpacker = msgpack.Unpacker(raw=False)
+    unpacker.feed(payload[:512])
+    try:
+        for _ in range(unpacker.read_map_header()):
+            key = unpacker.unpack()
+            if key == field:
+                return unpacker.unpack()
+            unpacker.skip()
+    except (msgpack.OutOfData, ValueError):
+        pass
+    obj = msgpack.unpackb(payload, raw=False)
+    return obj.get(field) if isinstance(obj, dict) else None
+
+
+def load_streams(spec: LoadSpec) -> list[list[dict[str, Any]]]:
+    """Box columns per frame for each distinct stream; sensor i replays stream i % len."""
+    if spec.source == "synthetic":
+        n = min(spec.sensors, 4)
+        return [
+            [box_columns(b) for b in synthetic_box_arrays(spec.synthetic_boxes, s)]
+            for s in range(n)
+        ]
+    files = list(scene_files(Path(spec.data)))[: spec.sensors]
+    return [[box_columns(b) for b in scene_box_arrays(p)] for p in files]
+
+
+# ----------------------------------------------------------------------------- the run
+class Receiver:
+    """Subscriber callbacks: receipt times by (sensor, seq), errors by reason."""
+
+    def __init__(self, spec: LoadSpec) -> None:
+        self.spec = spec
+        shape = (spec.sensors, spec.ticks)
+        self.recv_ns = np.zeros(shape, np.int64)
+        self.refused = np.zeros(shape, np.bool_)
+        self.reasons: Counter[str] = Counter()
+        self.received = 0
+        self.errors = 0
+        self.unexpected = 0
+        self.window_start: int | None = None  # monotonic ns when the warm-up ended
+        self.in_window = 0  # track frames received since window_start
+        self.lock = threading.Lock()
+
+    def _index(self, sample: zenoh.Sample, payload: bytes) -> tuple[int, int] | None:
+        try:
+            sensor = int(str(sample.key_expr).split("/")[-2][1:])
+            seq = int(peek(payload, "seq"))
+        except (ValueError, TypeError, IndexError):
+            return None
+        if 0 <= sensor < self.spec.sensors and 0 <= seq < self.spec.ticks:
+            return sensor, seq
+        return None
+
+    def on_tracks(self, sample: zenoh.Sample) -> None:
+        now = time.monotonic_ns()
+        payload = sample.payload.to_bytes()
+        at = self._index(sample, payload)
+        with self.lock:
+            if at is None or self.recv_ns[at]:
+                self.unexpected += 1
+                return
+            self.recv_ns[at] = now
+            self.received += 1
+            if self.window_start is not None and self.window_start <= now:
+                self.in_window += 1
+
+    def on_errors(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_bytes()
+        reason = str(peek(payload, "reason"))
+        at = self._index(sample, payload)
+        with self.lock:
+            self.errors += 1
+            self.reasons[reason] += 1
+            if at is not None:
+                self.refused[at] = True
+
+    def answered(self) -> int:
+        with self.lock:
+            return self.received + self.errors
+
+
+def _publish(
+    spec: LoadSpec,
+    pubs: list[zenoh.Publisher],
+    streams: list[list[dict[str, Any]]],
+    recv: Receiver,
+    conn: Connection,
+) -> tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]:
+    """Puts on schedule: sensor i at tick k is due at t0 + (k + i / S) / rate."""
+    n, ticks = spec.sensors, spec.ticks
+    period_ns = int(1e9 / spec.rate_hz)
+    sent_ns = np.zeros((n, ticks), np.int64)
+    late_ns = np.zeros((n, ticks), np.int64)
+    stamp0 = time.time_ns()
+    t0 = time.monotonic_ns() + 50_000_000
+    offsets = [i * period_ns // n for i in range(n)]
+    names = [sensor_name(i) for i in range(n)]
+    for k in range(ticks):
+        if k == spec.warm_ticks:
+            start = time.monotonic_ns()
+            with recv.lock:
+                recv.window_start = start
+            conn.send(("start", start))
+        for i in range(n):
+            due = t0 + k * period_ns + offsets[i]
+            wait = due - time.monotonic_ns()
+            if wait > 0:
+                time.sleep(wait * 1e-9)
+            frames = streams[i % len(streams)]
+            payload = detection_payload(
+                spec.vehicle, names[i], k, stamp0 + k * period_ns, frames[k % len(frames)]
+            )
+            now = time.monotonic_ns()
+            pubs[i].put(payload)
+            sent_ns[i, k] = now
+            late_ns[i, k] = now - due
+    conn.send(("end", time.monotonic_ns()))
+    return sent_ns, late_ns
+
+
+def _result(
+    spec: LoadSpec,
+    sent_ns: np.ndarray[Any, np.dtype[np.int64]],
+    late_ns: np.ndarray[Any, np.dtype[np.int64]],
+    recv: Receiver,
+    cpu_s: float,
+    window_s: float,
+) -> dict[str, Any]:
+    w = spec.warm_ticks
+    with recv.lock:
+        got = recv.recv_ns[:, w:]
+        ok = got > 0
+        latency_s = ((got - sent_ns[:, w:])[ok] * 1e-9).astype(np.float64)
+        # The worst frame of each tick: shows whether slow frames cluster in time (a stall
+        # of the whole server) or are spread out (per-frame cost).
+        per_tick = np.where(ok, (got - sent_ns[:, w:]) * 1e-6, 0.0).max(axis=0, initial=0.0)
+        refused_window = int(recv.refused[:, w:].sum())
+        return {
+            "sent": int(sent_ns.size),
+            "received": recv.received,
+            "refused": recv.errors,
+            "refused_by_reason": dict(recv.reasons),
+            "lost": int(sent_ns.size - recv.received - recv.errors),
+            "unexpected": recv.unexpected,
+            "window_sent": int(sent_ns[:, w:].size),
+            "window_received": int(ok.sum()),
+            "window_refused": refused_window,
+            "received_during_window": recv.in_window,
+            "latency_s": latency_s.tolist(),
+            "worst_per_tick_ms": [round(float(v), 2) for v in per_tick],
+            "put_lateness_s": (late_ns[:, w:].reshape(-1) * 1e-9).tolist(),
+            "loadgen_cpu_s": cpu_s,
+            "window_s": window_s,
+        }
+
+
+def run(conn: Connection, spec: LoadSpec) -> None:
+    """The spawned process's entry point."""
+    try:
+        streams = load_streams(spec)
+        recv = Receiver(spec)
+        base = f"{spec.prefix}/{spec.vehicle}"
+        with open_session(mode="peer", connect=[spec.endpoint]) as session:
+            session.declare_subscriber(f"{base}/*/tracks", recv.on_tracks)
+            session.declare_subscriber(f"{base}/*/errors", recv.on_errors)
+            pubs = [
+                session.declare_publisher(
+                    f"{base}/{sensor_name(i)}/detections",
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                )
+                for i in range(spec.sensors)
+            ]
+            deadline = time.monotonic() + 30
+            while not all(p.matching_status.matching for p in pubs):  # type: ignore[attr-defined]
+                if time.monotonic() > deadline:
+                    raise RuntimeError("no subscriber matched the detection keys within 30 s")
+                time.sleep(0.02)
+            boxes = [c["count"] for s in streams for c in s]
+            conn.send(("ready", {"streams": len(streams), "boxes_mean": float(np.mean(boxes))}))
+            if conn.recv() != "go":
+                return
+            cpu0 = time.process_time()
+            sent_ns, late_ns = _publish(spec, pubs, streams, recv, conn)
+            cpu_s = time.process_time() - cpu0
+            with recv.lock:
+                start = recv.window_start or 0
+                in_window = recv.in_window
+            window_s = (time.monotonic_ns() - start) * 1e-9
+            deadline = time.monotonic() + spec.drain_s
+            while recv.answered() < sent_ns.size and time.monotonic() < deadline:
+                time.sleep(0.02)
+            result = _result(spec, sent_ns, late_ns, recv, cpu_s, window_s)
+            result["received_during_window"] = in_window
+        conn.send(("result", result))
+    except Exception as exc:  # reported to the parent, which turns it into one line
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()

@@ -1,0 +1,511 @@
+"""``simpletrack bench service``: the running service's latency, CPU and capacity under load.
+
+One *step* = one sensor count S and one server kind:
+- ``tracker``: a fresh ``simpletrack serve`` subprocess (preset nuscenes) on 127.0.0.1;
+- ``echo``: ``simpletrack.bench.echo`` in its place (the Zenoh floor).
+A spawned load-generator process (loadgen.py) publishes S sensors at the rate and times the
+answers. This process opens no Zenoh session: it starts both, and reads the server's CPU
+time from ``/proc/<pid>/stat`` and (tracker only) its ``/metrics`` at the window's edges.
+
+S grows over the given list and stops after the first *saturated* step: the server could
+not keep up (a frame refused, dropped or never answered, or the median latency over the
+limit). A step *passes* when it is not saturated and its p99 is under the limit; on a shared
+machine a few scheduler stalls can fail the p99 of an otherwise idle server, which is why a
+p99 failure alone does not stop the sweep.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import linecache
+import multiprocessing
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simpletrack.bench import loadgen
+from simpletrack.bench.stats import cdf_ms, summary_ms
+from simpletrack.spawn import free_port, serve_command
+
+ROOT = Path(__file__).resolve().parents[3]
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+PREFIX = "bench"
+VEHICLE = "v0"
+P99_LIMIT_MS = 50.0
+GOAL_P99_ONE_SENSOR_MS = 5.0
+GOAL_STREAMS_PER_CORE = 500.0
+STEP_OVERHEAD_S = 6.0  # start-up, connection and drain around each measured window
+
+
+class BenchError(RuntimeError):
+    """A step could not run (server did not start, load generator failed): one line."""
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceBenchOptions:
+    sensors: tuple[int, ...]
+    seconds: float
+    warmup_s: float
+    rate_hz: float
+    workers: int
+    queue_size: int
+    source: str  # nuscenes | synthetic
+    data: Path  # the nuScenes centerpoint_val directory
+    synthetic_boxes: int
+    budget_s: float
+    echo: bool
+    profile_dir: Path | None
+    p99_limit_ms: float = P99_LIMIT_MS
+    drain_s: float = 5.0
+
+
+# ----------------------------------------------------------------------------- processes
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of every thread of ``pid`` (fields 14 and 15 of /proc/<pid>/stat)."""
+    text = Path(f"/proc/{pid}/stat").read_text()
+    fields = text[text.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def scrape(port: int) -> dict[str, float]:
+    """Every sample of /metrics as ``name{labels}`` -> value."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+        text = r.read().decode()
+    out = {}
+    for line in text.splitlines():
+        if line and not line.startswith("#"):
+            name, _, value = line.rpartition(" ")
+            with contextlib.suppress(ValueError):
+                out[name] = float(value)
+    return out
+
+
+@dataclass
+class Server:
+    kind: str
+    proc: subprocess.Popen[bytes]
+    endpoint: str
+    metrics_port: int | None
+    log: Path
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def tail(self) -> str:
+        with contextlib.suppress(OSError):
+            return self.log.read_text()[-800:].strip()
+        return ""
+
+
+def _wait_ready(server: Server, ready: Callable[[], bool], timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not ready():
+        if server.proc.poll() is not None:
+            raise BenchError(f"{server.kind} exited with {server.proc.returncode}: {server.tail()}")
+        if time.monotonic() > deadline:
+            server.stop()
+            raise BenchError(f"{server.kind} not ready after {timeout:.0f} s: {server.tail()}")
+        time.sleep(0.05)
+
+
+def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
+    port, metrics_port = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    log = tmp / f"serve-{port}.log"
+    cmd = serve_command(
+        endpoint,
+        metrics_port,
+        "bench",
+        "--prefix",
+        PREFIX,
+        "--preset",
+        "nuscenes",
+        "--workers",
+        str(opts.workers),
+        "--log-level",
+        "error",
+    )
+    env = {
+        **os.environ,
+        "NO_COLOR": "1",
+        "SIMPLETRACK_QUEUE_SIZE": str(opts.queue_size),
+        "SIMPLETRACK_IGNORE_CLASSES": json.dumps(loadgen.UNTRACKED),
+    }
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=out)
+    server = Server("service", proc, endpoint, metrics_port, log)
+
+    def ready() -> bool:
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/readyz", timeout=2) as r:
+                return int(r.status) == 200
+        except OSError:
+            return False
+
+    _wait_ready(server, ready)
+    return server
+
+
+def start_echo(tmp: Path) -> Server:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    log = tmp / f"echo-{port}.log"
+    cmd = [sys.executable, "-m", "simpletrack.bench.echo", "--listen", endpoint, "--prefix", PREFIX]
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=out)
+    server = Server("echo", proc, endpoint, None, log)
+    _wait_ready(server, lambda: "ready" in server.tail())
+    return server
+
+
+@contextlib.contextmanager
+def running(kind: str, opts: ServiceBenchOptions, tmp: Path) -> Iterator[Server]:
+    server = start_tracker(opts, tmp) if kind == "tracker" else start_echo(tmp)
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+# ----------------------------------------------------------------------------- profiling
+def start_profiler(pid: int, seconds: float, out: Path) -> subprocess.Popen[bytes] | None:
+    """py-spy on the server for the window (all threads, without pausing it)."""
+    exe = shutil.which("py-spy") or str(Path(sys.executable).parent / "py-spy")
+    if not Path(exe).exists():
+        return None
+    cmd = [
+        exe,
+        "record",
+        "--pid",
+        str(pid),
+        "--duration",
+        str(max(1, round(seconds))),
+        "--rate",
+        "200",
+        "--nonblocking",
+        "--format",
+        "raw",
+        "--output",
+        str(out),
+    ]
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def summarize_profile(path: Path, top: int = 15) -> dict[str, Any]:
+    """From py-spy's collapsed stacks: where the samples are, by innermost function (self), by
+    function anywhere on the stack (inclusive), and by the role of the thread."""
+    self_time: Counter[str] = Counter()
+    inclusive: Counter[str] = Counter()
+    roles: Counter[str] = Counter()
+    per_frame: Counter[str] = Counter()
+    total = 0
+    for line in path.read_text().splitlines():
+        stack, _, count_s = line.rpartition(" ")
+        if not stack or not count_s.isdigit():
+            continue
+        count = int(count_s)
+        raw = stack.split(";")
+        for i, f in enumerate(raw):
+            if f.startswith(FRAME_FUNCTION):
+                per_frame[_callee(raw, i)] += count
+                break
+        frames = [_frame_name(f) for f in raw]
+        code = [f for f in frames if not f.startswith(("process", "thread"))]
+        total += count
+        roles[_role(code)] += count
+        if code:
+            self_time[code[-1]] += count
+        for f in set(code):
+            inclusive[f] += count
+
+    def share(c: Counter[str]) -> list[tuple[str, float]]:
+        return [(k, round(v / max(total, 1), 4)) for k, v in c.most_common(top)]
+
+    return {
+        "samples": total,
+        "roles": share(roles),
+        "self": share(self_time),
+        "inclusive": share(inclusive),
+        # What the worker's per-frame function spends its samples on (its own lines are
+        # calls into native code, e.g. Zenoh's put).
+        "per_frame": [
+            (k, round(v / max(sum(per_frame.values()), 1), 4))
+            for k, v in per_frame.most_common(top)
+        ],
+    }
+
+
+ROLES = (
+    ("Worker.run", "worker threads"),
+    ("Intake.__call__", "zenoh callback (intake)"),
+    ("serve_forever", "metrics http"),
+)
+
+
+def _role(code: list[str]) -> str:
+    for marker, role in ROLES:
+        if any(f.startswith(marker) for f in code):
+            return role
+    if code and code[-1].startswith("Thread.run"):
+        return "native code under a Python thread (zenoh)"
+    return "other"
+
+
+FRAME_FUNCTION = "Worker._process "
+
+
+def _callee(stack: list[str], i: int) -> str:
+    """The function called from frame ``i``, or the source line frame ``i`` was on."""
+    if i + 1 < len(stack):
+        return _frame_name(stack[i + 1])
+    where = stack[i].strip().partition(" (")[2].rstrip(")")
+    file, _, line = where.rpartition(":")
+    text = linecache.getline(str(ROOT / file), int(line)).strip() if line.isdigit() else ""
+    return f"own line {line}: {text}" if text else f"own line {line}"
+
+
+def _frame_name(frame: str) -> str:
+    """``func (path/to/file.py:123)`` -> ``func (file.py)``; thread/process labels kept."""
+    name, _, where = frame.strip().partition(" (")
+    if not where:
+        return frame.strip()
+    file = where.rstrip(")").rsplit(":", 1)[0]
+    return f"{name} ({Path(file).name})"
+
+
+# ----------------------------------------------------------------------------- one step
+def _expect(conn: Connection, what: str, timeout: float) -> Any:
+    if not conn.poll(timeout):
+        raise BenchError(f"load generator: no {what!r} message within {timeout:.0f} s")
+    tag, value = conn.recv()
+    if tag == "error":
+        raise BenchError(f"load generator: {value}")
+    if tag != what:
+        raise BenchError(f"load generator: expected {what!r}, got {tag!r}")
+    return value
+
+
+def _stage_means(m0: dict[str, float], m1: dict[str, float]) -> dict[str, float | None]:
+    out: dict[str, float | None] = {}
+    for stage in ("queue", "decode", "track", "publish"):
+        s = f'simpletrack_stage_seconds_sum{{stage="{stage}"}}'
+        c = f'simpletrack_stage_seconds_count{{stage="{stage}"}}'
+        n = m1.get(c, 0.0) - m0.get(c, 0.0)
+        out[stage] = round(1e3 * (m1.get(s, 0.0) - m0.get(s, 0.0)) / n, 4) if n > 0 else None
+    return out
+
+
+def _counters(m: dict[str, float], name: str) -> dict[str, float]:
+    out = {}
+    for key, value in m.items():
+        if key.startswith(name + "{") and value:
+            out[key[len(name) + 1 : -1]] = value
+    return out
+
+
+def run_step(kind: str, sensors: int, opts: ServiceBenchOptions, tmp: Path) -> dict[str, Any]:
+    spec = loadgen.LoadSpec(
+        endpoint="",
+        prefix=PREFIX,
+        vehicle=VEHICLE,
+        sensors=sensors,
+        rate_hz=opts.rate_hz,
+        warmup_s=opts.warmup_s,
+        seconds=opts.seconds,
+        drain_s=opts.drain_s,
+        source=opts.source,
+        data=str(opts.data),
+        synthetic_boxes=opts.synthetic_boxes,
+    )
+    ctx = multiprocessing.get_context("spawn")  # never fork a process that may hold Zenoh
+    with running(kind, opts, tmp) as server:
+        spec = loadgen.LoadSpec(**{**asdict(spec), "endpoint": server.endpoint})
+        parent, child = ctx.Pipe()
+        gen = ctx.Process(target=loadgen.run, args=(child, spec), daemon=True)
+        gen.start()
+        child.close()
+        profiler = None
+        try:
+            ready = _expect(parent, "ready", 120.0)
+            parent.send("go")
+            _expect(parent, "start", opts.warmup_s + 30.0)
+            cpu0, t0 = cpu_seconds(server.proc.pid), time.monotonic()
+            m0 = scrape(server.metrics_port) if server.metrics_port else {}
+            if opts.profile_dir is not None and kind == "tracker":
+                prof_path = opts.profile_dir / f"service-{sensors}-sensors.txt"
+                profiler = start_profiler(server.proc.pid, opts.seconds, prof_path)
+            _expect(parent, "end", opts.seconds + 60.0)
+            cpu1, t1 = cpu_seconds(server.proc.pid), time.monotonic()
+            m1 = scrape(server.metrics_port) if server.metrics_port else {}
+            result = _expect(parent, "result", opts.drain_s + 60.0)
+            m2 = scrape(server.metrics_port) if server.metrics_port else {}
+        finally:
+            gen.join(10)
+            if gen.is_alive():
+                gen.kill()
+            parent.close()
+        profile = None
+        if profiler is not None:
+            try:
+                _, err = profiler.communicate(timeout=opts.seconds + 30)
+                if profiler.returncode == 0:
+                    profile = summarize_profile(prof_path)
+                    profile["file"] = str(prof_path)
+                else:
+                    profile = {"error": err.decode(errors="replace")[-300:]}
+            except subprocess.TimeoutExpired:
+                profiler.kill()
+                profile = {"error": "py-spy did not finish"}
+    window = t1 - t0
+    cpu = cpu1 - cpu0
+    done = max(result["received_during_window"], 1)
+    latency = np.asarray(result["latency_s"], np.float64)
+    lateness = np.asarray(result["put_lateness_s"], np.float64)
+    step: dict[str, Any] = {
+        "kind": kind,
+        "sensors": sensors,
+        "rate_hz": opts.rate_hz,
+        "boxes_per_frame": round(ready["boxes_mean"], 1),
+        "window_s": round(window, 3),
+        "sent": result["sent"],
+        "received": result["received"],
+        "refused": result["refused"],
+        "refused_by_reason": result["refused_by_reason"],
+        "lost": result["lost"],
+        "delivered_per_s": round(result["received_during_window"] / window, 2),
+        "latency": summary_ms(latency),
+        "cdf": cdf_ms(latency),
+        "server_cpu_s": round(cpu, 3),
+        "server_cores": round(cpu / window, 3),
+        "server_cpu_ms_per_frame": round(1e3 * cpu / done, 4),
+        "loadgen_cores": round(result["loadgen_cpu_s"] / max(result["window_s"], 1e-9), 3),
+        "put_lateness": summary_ms(lateness),
+        "worst_per_tick_ms": result["worst_per_tick_ms"],
+    }
+    if kind == "tracker":
+        step["metrics"] = {
+            "received": m2.get("simpletrack_frames_received_total", 0.0),
+            "tracked": m2.get("simpletrack_frames_tracked_total", 0.0),
+            "rejected": _counters(m2, "simpletrack_frames_rejected_total"),
+            "dropped": _counters(m2, "simpletrack_frames_dropped_total"),
+            "window_stage_ms": _stage_means(m0, m1),
+        }
+    if profile is not None:
+        step["profile"] = profile
+    step["saturated"], step["why"] = saturation(step, opts.p99_limit_ms)
+    p99 = step["latency"]["p99_ms"]
+    step["passes"] = not step["saturated"] and p99 is not None and p99 < opts.p99_limit_ms
+    return step
+
+
+def saturation(step: dict[str, Any], limit_ms: float) -> tuple[bool, list[str]]:
+    """Whether the server fell behind the offered load, and the evidence."""
+    why = []
+    p50 = step["latency"]["p50_ms"]
+    if p50 is None or p50 >= limit_ms:
+        why.append(f"median {p50} ms >= {limit_ms:g} ms (frames queue up)")
+    if step["refused"]:
+        why.append(f"{step['refused']} frames refused or dropped")
+    if step["lost"]:
+        why.append(f"{step['lost']} frames never answered")
+    late = step["put_lateness"]["p99_ms"]
+    if late is not None and late > 1e3 / step["rate_hz"]:
+        why.append(f"load generator behind schedule (put p99 {late:.0f} ms late)")
+    return bool(why), why
+
+
+# ----------------------------------------------------------------------------- the sweep
+def capacity(steps: list[dict[str, Any]]) -> dict[str, Any]:
+    """The saturation point and the per-core figure the goals are stated in."""
+    tracker = sorted((s for s in steps if s["kind"] == "tracker"), key=lambda s: s["sensors"])
+    passing = [s for s in tracker if s["passes"]]
+    first_bad = next((s for s in tracker if s["saturated"]), None)
+    first_fail = next((s for s in tracker if not s["passes"]), None)
+    one = next((s for s in tracker if s["sensors"] == 1), None)
+    out: dict[str, Any] = {
+        "one_sensor_p99_ms": one["latency"]["p99_ms"] if one else None,
+        "goal_one_sensor_p99_ms": GOAL_P99_ONE_SENSOR_MS,
+        "max_sensors_passing": passing[-1]["sensors"] if passing else None,
+        "server_cores_at_max": passing[-1]["server_cores"] if passing else None,
+        "first_failing_sensors": first_fail["sensors"] if first_fail else None,
+        "first_saturated_sensors": first_bad["sensors"] if first_bad else None,
+        "streams_per_core": None,
+        "streams_per_core_from_sensors": None,
+        "goal_streams_per_core": GOAL_STREAMS_PER_CORE,
+    }
+    # A core spends server_cpu_ms_per_frame on each frame (fixed costs amortised over the
+    # busiest step that kept up): that many 10 Hz streams would fill one core.
+    kept_up = [s for s in tracker if not s["saturated"]]
+    busiest = kept_up[-1] if kept_up else None
+    if busiest is not None and busiest["server_cpu_ms_per_frame"] > 0:
+        per_frame_s = busiest["server_cpu_ms_per_frame"] * 1e-3
+        out["streams_per_core"] = round(1.0 / (per_frame_s * busiest["rate_hz"]), 1)
+        out["streams_per_core_from_sensors"] = busiest["sensors"]
+    return out
+
+
+def run_service_bench(
+    opts: ServiceBenchOptions, progress: Callable[[str], None] = print
+) -> dict[str, Any]:
+    started = time.monotonic()
+    steps: list[dict[str, Any]] = []
+    stopped = "end of the sensor list"
+    kinds = ("tracker", "echo") if opts.echo else ("tracker",)
+    if opts.profile_dir is not None:
+        opts.profile_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="simpletrack-bench-") as tmp:
+        for n in opts.sensors:
+            for kind in kinds:
+                spent = time.monotonic() - started
+                if spent + opts.warmup_s + opts.seconds + STEP_OVERHEAD_S > opts.budget_s:
+                    stopped = f"time budget of {opts.budget_s:g} s"
+                    break
+                progress(f"{kind:7s} {n:4d} sensors at {opts.rate_hz:g} Hz, {opts.seconds:g} s ...")
+                step = run_step(kind, n, opts, Path(tmp))
+                progress("        " + step_line(step))
+                steps.append(step)
+            if stopped.startswith("time"):
+                break
+            if any(s["saturated"] for s in steps if s["kind"] == "tracker" and s["sensors"] == n):
+                stopped = f"saturated at {n} sensors"
+                break
+    return {
+        "steps": steps,
+        "stopped": stopped,
+        "capacity": capacity(steps) | {"p99_limit_ms": opts.p99_limit_ms},
+        "elapsed_s": round(time.monotonic() - started, 1),
+    }
+
+
+def step_line(step: dict[str, Any]) -> str:
+    lat = step["latency"]
+    if step["saturated"]:
+        flag = "SATURATED: " + "; ".join(step["why"])
+    else:
+        flag = "passes" if step["passes"] else "p99 over the limit"
+    return (
+        f"p50 {lat['p50_ms']} ms, p99 {lat['p99_ms']} ms, max {lat['max_ms']} ms; "
+        f"{step['received']}/{step['sent']} answered, {step['refused']} refused; "
+        f"server {step['server_cpu_ms_per_frame']} ms CPU/frame, {step['server_cores']} cores "
+        f"-> {flag}"
+    )

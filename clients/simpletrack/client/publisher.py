@@ -1,0 +1,287 @@
+"""``DetectionPublisher``: the vehicle side of the service. One per vehicle sensor.
+
+    from simpletrack.client import DetectionPublisher, ZenohOptions
+
+    with DetectionPublisher.connect("veh01", "lidar", classes=("vehicle", "pedestrian"),
+                                    options=ZenohOptions(connect=["tcp/127.0.0.1:7447"])) as pub:
+        pub.publish(boxes)                      # simpletrack.core.Boxes, BoxArrays or [Box, ...]
+        for err in pub.errors(timeout=0):       # frames the service refused, if any
+            print(err.seq, err.reason, err.detail)
+
+Frames are stamped with a per-sensor ``seq`` (strictly increasing) and, unless given, the
+wall-clock ``stamp_ns``. Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors``
+reach ``on_error`` (called on a Zenoh thread: keep it short) and the ``errors()`` iterator.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import zenoh
+
+from simpletrack.client.exit_hooks import close_before_thread_join
+from simpletrack.client.mailbox import Mailbox
+from simpletrack.core.boxes import Boxes
+from simpletrack.server.settings import Congestion
+from simpletrack.session import ZenohOptions, open_session
+from simpletrack.wire import (
+    BoxArrays,
+    FrameError,
+    Rejection,
+    decode_message,
+    encode_detection_frame,
+)
+from simpletrack.wire.keys import Keys
+from simpletrack.wire.models import NAME_PATTERN
+
+log = logging.getLogger(__name__)
+
+MSGPACK = zenoh.Encoding("application/msgpack")
+CONGESTION = {
+    Congestion.BLOCK: zenoh.CongestionControl.BLOCK,
+    Congestion.DROP: zenoh.CongestionControl.DROP,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Box:
+    """One detection, for callers that think in objects rather than arrays. ``x, y, z`` is
+    the box centre, z up; ``yaw`` about +z from +x; ``l`` along the heading."""
+
+    x: float
+    y: float
+    z: float
+    yaw: float
+    l: float  # noqa: E741 - the spec's name
+    w: float
+    h: float
+    score: float
+    cls: str
+    vx: float | None = None
+    vy: float | None = None
+
+
+def check_name(kind: str, value: str) -> str:
+    if not re.match(NAME_PATTERN, value):
+        raise ValueError(
+            f"{kind} id {value!r} must be 1-64 letters, digits, '_', '.' or '-' (no '/' or '*')"
+        )
+    return value
+
+
+def boxes_to_arrays(boxes: Boxes, classes: Sequence[str]) -> BoxArrays:
+    """Core ``Boxes`` (codes index ``classes``) as wire columns."""
+    return BoxArrays.from_boxes(boxes, classes)
+
+
+def box_list_to_arrays(boxes: Sequence[Box], classes: Sequence[str]) -> BoxArrays:
+    """A list of ``Box``; class names outside ``classes`` are appended to the frame's table
+    (the service then refuses them as ``unknown_class``, which is the honest outcome)."""
+    table = list(classes)
+    index = []
+    for b in boxes:
+        if b.cls not in table:
+            table.append(b.cls)
+        index.append(table.index(b.cls))
+    n = len(boxes)
+    with_velocity = n > 0 and all(b.vx is not None and b.vy is not None for b in boxes)
+    return BoxArrays(
+        classes=tuple(table),
+        class_index=np.array(index, dtype=np.int32),
+        center=np.array([(b.x, b.y, b.z) for b in boxes], dtype=np.float32).reshape(n, 3),
+        size=np.array([(b.l, b.w, b.h) for b in boxes], dtype=np.float32).reshape(n, 3),
+        yaw=np.array([b.yaw for b in boxes], dtype=np.float32),
+        score=np.array([b.score for b in boxes], dtype=np.float64),
+        velocity=np.array([(b.vx, b.vy) for b in boxes], dtype=np.float32).reshape(n, 2)
+        if with_velocity
+        else None,
+    )
+
+
+class DetectionPublisher:
+    """Publishes one vehicle sensor's detection frames on ``<prefix>/<vehicle>/<sensor>/detections``."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        vehicle: str,
+        sensor: str,
+        *,
+        classes: Sequence[str],
+        prefix: str = "fleet",
+        frame_id: str | None = None,
+        congestion: Congestion = Congestion.BLOCK,
+        on_error: Callable[[FrameError], None] | None = None,
+        error_buffer: int = 1000,
+        first_seq: int = 0,
+    ) -> None:
+        self.vehicle = check_name("vehicle", vehicle)
+        self.sensor = check_name("sensor", sensor)
+        self.classes = tuple(classes)
+        self.frame_id = frame_id or sensor
+        self.keys = Keys(prefix)
+        self.next_seq = first_seq
+        self.sent = 0
+        self.invalid_errors = 0
+        self._session = session
+        self._owns_session = False
+        self._on_error = on_error
+        self._errors: Mailbox[FrameError] = Mailbox(error_buffer)
+        self._closed = False
+        self._publisher = session.declare_publisher(
+            self.keys.detections(vehicle, sensor),
+            encoding=MSGPACK,
+            congestion_control=CONGESTION[Congestion(congestion)],
+        )
+        self._error_sub = session.declare_subscriber(
+            self.keys.errors(vehicle, sensor), self._on_error_sample
+        )
+        close_before_thread_join(self)
+
+    @classmethod
+    def connect(
+        cls, vehicle: str, sensor: str, *, options: ZenohOptions | None = None, **kwargs: Any
+    ) -> DetectionPublisher:
+        """A publisher with a session of its own (closed by ``close()``). Without options it
+        joins a service on this machine: peer mode, connecting to ``tcp/127.0.0.1:7447``."""
+        session = open_session(options or default_options())
+        try:
+            pub = cls(session, vehicle, sensor, **kwargs)
+        except BaseException:
+            session.close()  # type: ignore[no-untyped-call]
+            raise
+        pub._owns_session = True
+        return pub
+
+    # ----------------------------------------------------------------- publishing
+    def publish(
+        self,
+        boxes: Boxes | BoxArrays | Sequence[Box],
+        *,
+        stamp_ns: int | None = None,
+        pose: npt.ArrayLike | None = None,
+        key_frame: bool = True,
+        seq: int | None = None,
+    ) -> int:
+        """Send one frame; returns its ``seq``. ``pose`` is the optional 4x4 sensor->world;
+        ``seq`` (default: one more than the last) may skip ahead, never go back."""
+        if isinstance(boxes, Boxes):
+            arrays = boxes_to_arrays(boxes, self.classes)
+        elif isinstance(boxes, BoxArrays):
+            arrays = boxes
+        else:
+            arrays = box_list_to_arrays(boxes, self.classes)
+        return self.publish_arrays(
+            arrays, stamp_ns=stamp_ns, pose=pose, key_frame=key_frame, seq=seq
+        )
+
+    def publish_arrays(
+        self,
+        boxes: BoxArrays,
+        *,
+        stamp_ns: int | None = None,
+        pose: npt.ArrayLike | None = None,
+        key_frame: bool = True,
+        seq: int | None = None,
+    ) -> int:
+        if self._closed:
+            raise RuntimeError("publisher is closed")
+        if seq is None:
+            seq = self.next_seq
+        elif seq < self.next_seq:
+            raise ValueError(f"seq {seq} is below the next one, {self.next_seq}: seq only grows")
+        payload = encode_detection_frame(
+            vehicle=self.vehicle,
+            sensor=self.sensor,
+            seq=seq,
+            stamp_ns=time.time_ns() if stamp_ns is None else int(stamp_ns),
+            frame_id=self.frame_id,
+            boxes=boxes,
+            pose=pose,
+            key_frame=key_frame,
+        )
+        self._publisher.put(payload)
+        self.next_seq = seq + 1
+        self.sent += 1
+        return seq
+
+    def wait_for_service(self, timeout: float) -> bool:
+        """True once some subscriber (a service) matches this sensor's detections key."""
+        deadline = time.monotonic() + timeout
+        while True:
+            # The stubs say bool; zenoh 1.10 returns a MatchingStatus.
+            status: object = self._publisher.matching_status
+            if bool(getattr(status, "matching", status)):
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.02)
+
+    # ----------------------------------------------------------------- errors
+    def _on_error_sample(self, sample: zenoh.Sample) -> None:
+        msg = decode_message(sample.payload.to_bytes(), FrameError)
+        if isinstance(msg, Rejection):
+            self.invalid_errors += 1
+            return
+        self._errors.put(msg)
+        if self._on_error is not None:
+            try:
+                self._on_error(msg)
+            except Exception:  # a user callback must not kill Zenoh's thread
+                log.exception("on_error callback failed")
+
+    def errors(self, timeout: float | None = None) -> Iterator[FrameError]:
+        """Errors received so far and, while ``timeout`` allows, more as they come: each
+        wait for the next error lasts at most ``timeout`` s (None: until ``close()``)."""
+        while True:
+            err = self._errors.get(timeout)
+            if err is None:
+                return
+            yield err
+
+    @property
+    def errors_received(self) -> int:
+        return self._errors.put_count
+
+    # ----------------------------------------------------------------- shutdown
+    def close(self) -> None:
+        """Stop; closes the session if this publisher opened it. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._errors.close()
+        if self._owns_session:
+            _close_quietly(self._session)
+        else:
+            for entity in (self._error_sub, self._publisher):
+                with contextlib.suppress(Exception):  # already gone with its session
+                    entity.undeclare()  # type: ignore[no-untyped-call]
+
+    def __enter__(self) -> DetectionPublisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def default_options() -> ZenohOptions:
+    """Peer mode, no listening, connecting to a service on this machine (its default listen)."""
+    from simpletrack.server.settings import DEFAULT_LISTEN
+
+    return ZenohOptions(connect=list(DEFAULT_LISTEN))
+
+
+def _close_quietly(session: zenoh.Session) -> None:
+    try:
+        if not session.is_closed():
+            session.close()  # type: ignore[no-untyped-call]
+    except Exception:
+        pass

@@ -1,0 +1,218 @@
+"""``TrackSubscriber``: the planner side of the service. Receives decoded ``TrackFrame``s of one
+sensor, one vehicle or the whole fleet, as a blocking iterator, a callback, or ``async for``.
+
+    from simpletrack.client import TrackSubscriber
+
+    with TrackSubscriber.connect(vehicle="veh01") as sub:      # every sensor of veh01
+        for msg in sub:                                       # blocks; ends on close()
+            print(msg.vehicle, msg.sensor, msg.seq, msg.tracks.id)
+
+    async with TrackSubscriber.connect() as sub:              # the whole fleet
+        async for msg in sub: ...
+
+Messages are decoded on Zenoh's thread and wait in a bounded buffer (the newest ``buffer``
+frames are kept; ``dropped`` counts the rest). ``close()`` wakes every waiting consumer and
+closes the session the subscriber opened: no thread stays blocked at exit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections.abc import AsyncIterator, Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from simpletrack.client.exit_hooks import close_before_thread_join
+from simpletrack.client.mailbox import Mailbox
+from simpletrack.client.publisher import _close_quietly, check_name, default_options
+from simpletrack.core.boxes import Boxes
+from simpletrack.session import ZenohOptions, open_session
+from simpletrack.wire import Rejection, TrackArrays, TrackFrame, decode_track_frame
+from simpletrack.wire.keys import Keys
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class TrackMessage:
+    """One decoded ``TrackFrame``: header, columns, and when this client received it."""
+
+    key: str
+    frame: TrackFrame
+    tracks: TrackArrays
+    received_ns: int  # this client's wall clock
+
+    @property
+    def vehicle(self) -> str:
+        return self.frame.vehicle
+
+    @property
+    def sensor(self) -> str:
+        return self.frame.sensor
+
+    @property
+    def seq(self) -> int:
+        return self.frame.seq
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.frame.stamp_ns
+
+    @property
+    def latency_s(self) -> float:
+        """Sensor stamp to arrival here; meaningful when the sensor stamps with wall-clock time."""
+        return (self.received_ns - self.frame.stamp_ns) * 1e-9
+
+    def class_names(self) -> list[str]:
+        return [self.tracks.classes[i] for i in self.tracks.class_index.tolist()]
+
+    def boxes(self, classes: Sequence[str] | None = None) -> Boxes:
+        """The tracks as core ``Boxes`` (float64); class codes index ``classes`` (default:
+        the service's table). Tracks of classes missing from ``classes`` are dropped."""
+        t = self.tracks
+        params = np.empty((len(t), 7))
+        params[:, 0:3] = t.center
+        params[:, 3] = t.yaw
+        params[:, 4:7] = t.size
+        codes = t.class_index.astype(np.int32)
+        keep = np.ones(len(t), dtype=bool)
+        if classes is not None:
+            remap = np.array(
+                [classes.index(c) if c in classes else -1 for c in t.classes], np.int32
+            )
+            codes = remap[codes] if len(t) else codes
+            keep = codes >= 0
+        boxes = Boxes(
+            params=params,
+            score=t.score.astype(np.float64),
+            cls=codes,
+            velocity=t.velocity[:, :2].astype(np.float64),
+        )
+        return boxes if keep.all() else boxes.take(keep)
+
+    def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
+        """Track ids, in the order of ``boxes(classes)``."""
+        ids: np.ndarray[Any, np.dtype[np.int64]] = self.tracks.id.astype(np.int64)
+        if classes is None:
+            return ids
+        keep = np.array([n in classes for n in self.class_names()], dtype=bool)
+        return np.asarray(ids[keep], dtype=np.int64)
+
+
+def tracks_key(prefix: str = "fleet", vehicle: str = "*", sensor: str = "*") -> str:
+    """``<prefix>/<vehicle>/<sensor>/tracks``; ``*`` selects every vehicle or sensor."""
+    for kind, value in (("vehicle", vehicle), ("sensor", sensor)):
+        if value != "*":
+            check_name(kind, value)
+    return Keys(prefix).tracks(vehicle, sensor)
+
+
+class TrackSubscriber:
+    """Subscribes to tracks by key expression (default: the whole fleet under ``prefix``)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        *,
+        vehicle: str = "*",
+        sensor: str = "*",
+        prefix: str = "fleet",
+        key_expr: str | None = None,
+        callback: Callable[[TrackMessage], None] | None = None,
+        buffer: int = 1024,
+    ) -> None:
+        self.key_expr = key_expr or tracks_key(prefix, vehicle, sensor)
+        self.invalid = 0
+        self.last_rejection: Rejection | None = None
+        self._session = session
+        self._owns_session = False
+        self._callback = callback
+        self._mailbox: Mailbox[TrackMessage] = Mailbox(buffer)
+        self._closed = False
+        self._sub = session.declare_subscriber(self.key_expr, self._on_sample)
+        close_before_thread_join(self)
+
+    @classmethod
+    def connect(cls, *, options: ZenohOptions | None = None, **kwargs: Any) -> TrackSubscriber:
+        """A subscriber with a session of its own (closed by ``close()``). Without options it
+        joins a service on this machine: peer mode, connecting to ``tcp/127.0.0.1:7447``."""
+        session = open_session(options or default_options())
+        try:
+            sub = cls(session, **kwargs)
+        except BaseException:
+            session.close()  # type: ignore[no-untyped-call]
+            raise
+        sub._owns_session = True
+        return sub
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        received = time.time_ns()
+        decoded = decode_track_frame(sample.payload.to_bytes())
+        if isinstance(decoded, Rejection):
+            self.invalid += 1
+            self.last_rejection = decoded
+            return
+        msg = TrackMessage(str(sample.key_expr), decoded[0], decoded[1], received)
+        if self._callback is None:
+            self._mailbox.put(msg)
+            return
+        try:
+            self._callback(msg)
+        except Exception:  # a user callback must not kill Zenoh's thread
+            log.exception("track callback failed")
+
+    # ----------------------------------------------------------------- consuming
+    @property
+    def received(self) -> int:
+        return self._mailbox.put_count
+
+    @property
+    def dropped(self) -> int:
+        """Frames pushed out of the full buffer before anyone took them."""
+        return self._mailbox.dropped
+
+    def recv(self, timeout: float | None = None) -> TrackMessage | None:
+        """The next frame; None on timeout or once closed and drained."""
+        return self._mailbox.get(timeout)
+
+    def try_recv(self) -> TrackMessage | None:
+        return self._mailbox.get_nowait()
+
+    def __iter__(self) -> Iterator[TrackMessage]:
+        return iter(self._mailbox)
+
+    def __aiter__(self) -> AsyncIterator[TrackMessage]:
+        return self._mailbox.__aiter__()
+
+    async def recv_async(self) -> TrackMessage | None:
+        return await self._mailbox.get_async()
+
+    # ----------------------------------------------------------------- shutdown
+    def close(self) -> None:
+        """Wake every consumer and stop; closes the session if this subscriber opened it."""
+        if self._closed:
+            return
+        self._closed = True
+        self._mailbox.close()
+        if self._owns_session:
+            _close_quietly(self._session)
+        else:
+            with contextlib.suppress(Exception):  # already gone with its session
+                self._sub.undeclare()  # type: ignore[no-untyped-call]
+
+    def __enter__(self) -> TrackSubscriber:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self) -> TrackSubscriber:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()

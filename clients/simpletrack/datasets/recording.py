@@ -1,0 +1,189 @@
+"""Writing received tracks to files: JSON lines (one frame per line, for anything) and the KITTI
+tracking result format (for ``simpletrack eval kitti --results``).
+
+JSON lines, one object per received ``TrackFrame``::
+
+    {"vehicle": "veh00", "sensor": "lidar", "seq": 12, "stamp_ns": ..., "frame_id": "world",
+     "received_ns": ..., "published_ns": ..., "tracks": [
+        {"id": 3, "cls": "vehicle", "box": [x, y, z, yaw, l, w, h], "score": 0.91,
+         "velocity": [vx, vy, vz], "state": "confirmed", "hits": 9, "age": 11,
+         "time_since_update": 0}, ...]}
+
+Ground truth uses the same layout (``tracks`` holding the true objects, ``state`` "truth", or
+"ignored" for the mostly hidden ones the scorer ignores), so ``simpletrack plot`` reads both.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.client.subscriber import TrackMessage
+from simpletrack.core.boxes import Boxes
+from simpletrack.datasets.kitti import Calib, ResultRows, format_results, read_calib, tracks_to_rows
+from simpletrack.wire import WireTrackState
+
+STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
+
+
+def _r(a: npt.NDArray[Any], digits: int = 4) -> list[Any]:
+    return np.round(a.astype(np.float64), digits).tolist()  # type: ignore[no-any-return]
+
+
+def message_to_json(msg: TrackMessage) -> dict[str, Any]:
+    t, f = msg.tracks, msg.frame
+    box = np.concatenate([t.center, t.yaw[:, None], t.size], axis=1)
+    tracks = [
+        {
+            "id": i,
+            "cls": c,
+            "box": b,
+            "score": s,
+            "velocity": v,
+            "state": STATE_NAMES.get(st, str(st)),
+            "hits": h,
+            "age": a,
+            "time_since_update": tsu,
+        }
+        for i, c, b, s, v, st, h, a, tsu in zip(
+            t.id.tolist(),
+            msg.class_names(),
+            _r(box),
+            _r(t.score),
+            _r(t.velocity),
+            t.state.tolist(),
+            t.hits.tolist(),
+            t.age.tolist(),
+            t.time_since_update.tolist(),
+            strict=True,
+        )
+    ]
+    return {
+        "vehicle": f.vehicle,
+        "sensor": f.sensor,
+        "seq": f.seq,
+        "stamp_ns": f.stamp_ns,
+        "frame_id": f.frame_id,
+        "received_ns": f.received_ns,
+        "published_ns": f.published_ns,
+        "tracks": tracks,
+    }
+
+
+def truth_to_json(
+    vehicle: str,
+    sensor: str,
+    seq: int,
+    stamp_ns: int,
+    ids: npt.NDArray[np.int64],
+    boxes: Boxes,
+    class_names: Sequence[str],
+    ignore: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, Any]:
+    """The simulator's truth of one sensor frame; ``ignore`` marks objects the scorer ignores
+    (state "ignored", the others "truth")."""
+    hidden = [False] * len(ids) if ignore is None else ignore.tolist()
+    return {
+        "vehicle": vehicle,
+        "sensor": sensor,
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "frame_id": "world",
+        "tracks": [
+            {"id": i, "cls": class_names[c], "box": b, "state": "ignored" if h else "truth"}
+            for i, c, b, h in zip(
+                ids.tolist(), boxes.cls.tolist(), _r(boxes.params), hidden, strict=True
+            )
+        ],
+    }
+
+
+class JsonlWriter:
+    """Appends one JSON object per line; flushes every line (a crash loses nothing)."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self._file: IO[str] = path.open("w", encoding="utf-8")
+        self.lines = 0
+
+    def write(self, obj: dict[str, Any]) -> None:
+        self._file.write(json.dumps(obj, separators=(",", ":")) + "\n")
+        self._file.flush()
+        self.lines += 1
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class KittiWriter:
+    """KITTI tracking results, one file per stream: ``out/data_0/<name>.txt`` where the name is
+    the stream's sensor id (``replay kitti`` names sensors by sequence, e.g. ``0001``).
+
+    Rows are buffered per stream and each file is rewritten sorted by frame on ``flush()``
+    and ``close()``. The 2D boxes need the sequence's camera calibration: from
+    ``calib_dir/<name>.txt`` when given, else all-zero boxes (the evaluator's 2D rules then
+    cannot apply: give the calibration when the files are to be scored)."""
+
+    def __init__(self, out_dir: Path, calib_dir: Path | None) -> None:
+        self.out_dir = out_dir
+        self.calib_dir = calib_dir
+        self._rows: dict[str, list[ResultRows]] = {}
+        self._calib: dict[str, Calib | None] = {}
+        self.frames = 0
+
+    def calib_for(self, name: str) -> Calib | None:
+        if name not in self._calib:
+            calib = None
+            if self.calib_dir is not None:
+                path = self.calib_dir / f"{name}.txt"
+                if not path.is_file():
+                    raise FileNotFoundError(f"no calibration for stream {name!r}: {path}")
+                calib = read_calib(path)
+            self._calib[name] = calib
+        return self._calib[name]
+
+    def write(self, msg: TrackMessage) -> None:
+        name = msg.sensor
+        self.calib_for(name)
+        boxes = msg.boxes()
+        rows = tracks_to_rows(msg.seq, msg.tracks.id.astype(np.int64), boxes, msg.tracks.classes)
+        self._rows.setdefault(name, []).append(rows)
+        self.frames += 1
+
+    def flush(self) -> list[Path]:
+        paths = []
+        for name, parts in self._rows.items():
+            rows = ResultRows.concat(parts)
+            self._rows[name] = [rows]
+            ordered = rows.by_frame()
+            path = self.out_dir / "data_0" / f"{name}.txt"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            calib = self._calib.get(name)
+            text = (
+                format_results(ordered, calib) if calib is not None else _format_no_calib(ordered)
+            )
+            tmp = path.with_suffix(".tmp")
+            tmp.write_text(text)
+            tmp.replace(path)
+            paths.append(path)
+        return paths
+
+    def close(self) -> list[Path]:
+        return self.flush()
+
+
+def _format_no_calib(rows: ResultRows) -> str:
+    from simpletrack.datasets.kitti import observation_angle
+
+    alpha = observation_angle(rows.cam)
+    nums = np.column_stack([alpha, np.zeros((len(alpha), 4)), rows.cam, rows.score])
+    return "".join(
+        f"{int(f)} {int(i)} {t} 0 0 " + " ".join(f"{v:.6f}" for v in vals) + "\n"
+        for f, i, t, vals in zip(rows.frame, rows.track_id, rows.type_name, nums, strict=True)
+    )

@@ -1,0 +1,1 @@
+"""Evaluation: KITTI (AB3DMOT's rules), CLEAR MOT scoring, nuScenes parity, preset tuning."""

@@ -1,0 +1,1 @@
+"""A simulated fleet with ground truth, and the demo that runs it against a real service."""

@@ -1,0 +1,556 @@
+"""A seeded, pure-numpy world for demos and tests: a fleet of vehicles with sensors, moving
+objects of several classes, and a detector model with the faults a real one has.
+
+Nothing here touches the network or a clock: ``FleetSimulator.step()`` advances simulated time
+by one frame and returns, for every sensor of every vehicle, the detections (sensor frame, as
+``simpletrack.core.boxes.Boxes``), the sensor->world pose and the ground truth (world frame).
+
+The world is shared by the fleet: one object may be seen by several sensors. Random streams are
+split per purpose (world motion, each sensor's detector) from one seed, so the same seed gives
+the same world, and changing the detector model or the number of sensors does not change how
+the objects move.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Annotated
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from simpletrack.core.boxes import Boxes, transform_boxes, wrap_angle
+from simpletrack.core.config import TrackerConfig
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+Bool = npt.NDArray[np.bool_]
+
+Fraction = Annotated[float, Field(ge=0.0, le=1.0)]
+Positive = Annotated[float, Field(gt=0.0)]
+NonNegative = Annotated[float, Field(ge=0.0)]
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True)
+
+
+class ObjectClass(_Frozen):
+    """How one class of object looks and moves."""
+
+    size: tuple[Positive, Positive, Positive] = Field(description="mean l, w, h in metres")
+    size_jitter: Fraction = Field(default=0.1, description="relative std of each object's size")
+    speed: tuple[NonNegative, NonNegative] = Field(description="min, max cruise speed (m/s)")
+    turn_rate_std: NonNegative = Field(
+        description="random-walk std of the turn rate (rad/s/sqrt(s))"
+    )
+    max_turn_rate: NonNegative = Field(default=0.5, description="turn rate bound (rad/s)")
+    share: Positive = Field(description="relative share of the population")
+    detect_prob: Fraction = Field(
+        default=0.95, description="chance of a detection when fully visible"
+    )
+
+    @model_validator(mode="after")
+    def _speed_ordered(self) -> ObjectClass:
+        if self.speed[0] > self.speed[1]:
+            raise ValueError(f"speed range {self.speed} must be (min, max)")
+        return self
+
+
+def default_classes() -> dict[str, ObjectClass]:
+    """vehicle, pedestrian, cyclist: the class names (and order) of the ``wod`` preset."""
+    return {
+        "vehicle": ObjectClass(
+            size=(4.6, 1.9, 1.6), speed=(3.0, 12.0), turn_rate_std=0.15, share=0.5
+        ),
+        "pedestrian": ObjectClass(
+            size=(0.8, 0.7, 1.75),
+            speed=(0.6, 1.8),
+            turn_rate_std=0.4,
+            max_turn_rate=1.0,
+            share=0.3,
+            detect_prob=0.9,
+        ),
+        "cyclist": ObjectClass(
+            size=(1.8, 0.7, 1.7), speed=(2.5, 7.0), turn_rate_std=0.25, share=0.2, detect_prob=0.92
+        ),
+    }
+
+
+class SensorSpec(_Frozen):
+    """A sensor mounted on every vehicle of the fleet."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="key-safe sensor id")
+    mount: tuple[float, float, float, float] = Field(
+        default=(0.0, 0.0, 1.8, 0.0), description="x, y, z, yaw of the sensor in the vehicle frame"
+    )
+    fov_deg: Annotated[float, Field(gt=0.0, le=360.0)] = 360.0
+    max_range: Positive = 50.0
+    min_range: NonNegative = 1.0
+
+
+def default_sensors() -> tuple[SensorSpec, ...]:
+    return (
+        SensorSpec(name="lidar", mount=(0.0, 0.0, 1.8, 0.0), fov_deg=360.0, max_range=50.0),
+        SensorSpec(name="front", mount=(1.6, 0.0, 1.4, 0.0), fov_deg=100.0, max_range=70.0),
+    )
+
+
+class DetectorModel(_Frozen):
+    """The faults of the simulated detector. Scores are probabilities in [0, 1]."""
+
+    centre_noise: NonNegative = Field(default=0.12, description="centre std (m) at zero range")
+    centre_noise_per_m: NonNegative = Field(default=0.004, description="extra centre std per metre")
+    yaw_noise: NonNegative = Field(default=0.06, description="yaw std (rad)")
+    size_noise: Fraction = Field(default=0.05, description="relative size std")
+    occlusion_miss: Fraction = Field(
+        default=0.6, description="a fully hidden object's detection chance is cut by this fraction"
+    )
+    occlusion_low_score: Fraction = Field(
+        default=0.6, description="a fully hidden object, when detected, gets a low score this often"
+    )
+    range_miss: Fraction = Field(
+        default=0.15,
+        description="an object at max range has its detection chance cut by this fraction",
+    )
+    low_score_prob: Fraction = Field(
+        default=0.08, description="chance a clear detection gets a low score (stage-2 material)"
+    )
+    score_high: tuple[Fraction, Fraction] = (0.72, 0.99)
+    score_low: tuple[Fraction, Fraction] = (0.12, 0.45)
+    duplicate_prob: Fraction = Field(
+        default=0.08,
+        description="chance of a second, overlapping, lower-score box (NMS removes it)",
+    )
+    false_positives: NonNegative = Field(
+        default=0.8, description="mean false positives per sensor frame (Poisson)"
+    )
+    false_positive_high: Fraction = Field(
+        default=0.15, description="share of false positives with a high score"
+    )
+
+
+class SimConfig(_Frozen):
+    """The whole simulated world. Validated: a bad value is named in the error."""
+
+    seed: int = 0
+    vehicles: Annotated[int, Field(ge=1, le=256)] = 3
+    sensors: tuple[SensorSpec, ...] = Field(default_factory=default_sensors, min_length=1)
+    classes: dict[str, ObjectClass] = Field(default_factory=default_classes, min_length=1)
+    objects: Annotated[int, Field(ge=0, le=10_000)] = Field(
+        default=90, description="objects alive at any time (leavers are replaced by newcomers)"
+    )
+    area: Annotated[float, Field(gt=10.0)] = Field(
+        default=180.0, description="side of the square world (m), centred on the origin"
+    )
+    rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] = 10.0
+    ego_speed: tuple[NonNegative, NonNegative] = (5.0, 10.0)
+    detector: DetectorModel = DetectorModel()
+    truth_ignore_occlusion: Fraction = Field(
+        default=0.8, description="ground truth hidden more than this is 'ignored' by the scorer"
+    )
+
+    @model_validator(mode="after")
+    def _unique_sensors(self) -> SimConfig:
+        names = [s.name for s in self.sensors]
+        if len(set(names)) != len(names):
+            raise ValueError(f"sensor names must be unique, got {names}")
+        return self
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        return tuple(self.classes)
+
+    def check_tracker_config(self, config: TrackerConfig) -> None:
+        """Class codes are indices into both lists: they must name the same classes in order."""
+        if config.class_names[: len(self.classes)] != self.class_names:
+            raise ValueError(
+                f"simulator classes {self.class_names} are not the first classes of the tracker "
+                f"config {config.class_names}"
+            )
+
+
+def vehicle_id(index: int) -> str:
+    return f"veh{index:02d}"
+
+
+@dataclass(frozen=True, slots=True)
+class SensorFrame:
+    """One sensor's frame: what the detector saw, where the sensor was, and what was there.
+
+    ``detections`` are in the sensor frame; ``pose`` maps sensor -> world. The truth is in the
+    world frame: ``truth_ids`` are global object ids (stable while an object lives, never
+    reused); ``truth_ignore`` marks objects hidden more than ``truth_ignore_occlusion``;
+    ``truth_occlusion`` is the hidden fraction of each object's outline seen from the sensor."""
+
+    vehicle: str
+    sensor: str
+    seq: int
+    stamp: float
+    pose: F64
+    detections: Boxes
+    truth_ids: I64
+    truth: Boxes
+    truth_ignore: Bool
+    truth_occlusion: F64
+
+    @property
+    def truth_in_sensor_frame(self) -> Boxes:
+        return transform_boxes(self.truth, np.linalg.inv(self.pose).astype(np.float64))
+
+
+def pose_matrix(x: float, y: float, z: float, yaw: float) -> F64:
+    c, s = math.cos(yaw), math.sin(yaw)
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    m[:3, 3] = [x, y, z]
+    return m
+
+
+class _Objects:
+    """Struct-of-arrays object population with constant turn-rate and velocity motion."""
+
+    def __init__(self, config: SimConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self.rng = rng
+        self.models = list(config.classes.values())
+        share = np.array([m.share for m in self.models])
+        self.class_p = share / share.sum()
+        self.mean_size = np.array([m.size for m in self.models])
+        self.size_jitter = np.array([m.size_jitter for m in self.models])
+        self.speed_range = np.array([m.speed for m in self.models])
+        self.turn_std = np.array([m.turn_rate_std for m in self.models])
+        self.max_turn = np.array([m.max_turn_rate for m in self.models])
+        self.detect_prob = np.array([m.detect_prob for m in self.models])
+        self.next_id = 0
+        n = config.objects
+        self.ids = np.zeros(0, dtype=np.int64)
+        self.cls = np.zeros(0, dtype=np.int32)
+        self.xy = np.zeros((0, 2))
+        self.yaw = np.zeros(0)
+        self.speed = np.zeros(0)
+        self.target_speed = np.zeros(0)
+        self.turn = np.zeros(0)
+        self.size = np.zeros((0, 3))
+        half = config.area / 2
+        self._spawn(rng.uniform(-half, half, size=(n, 2)), rng.uniform(-np.pi, np.pi, size=n))
+
+    def _spawn(self, xy: F64, yaw: F64) -> None:
+        n = xy.shape[0]
+        if n == 0:
+            return
+        rng = self.rng
+        cls = np.asarray(rng.choice(len(self.models), size=n, p=self.class_p), dtype=np.int32)
+        lo, hi = self.speed_range[cls, 0], self.speed_range[cls, 1]
+        speed = rng.uniform(lo, hi)
+        size = self.mean_size[cls] * (
+            1.0 + self.size_jitter[cls, None] * rng.standard_normal((n, 3))
+        )
+        size = np.maximum(size, 0.3 * self.mean_size[cls])
+        self.ids = np.concatenate([self.ids, np.arange(self.next_id, self.next_id + n)])
+        self.next_id += n
+        self.cls = np.concatenate([self.cls, cls])
+        self.xy = np.concatenate([self.xy, xy])
+        self.yaw = np.concatenate([self.yaw, yaw])
+        self.speed = np.concatenate([self.speed, speed])
+        self.target_speed = np.concatenate([self.target_speed, speed])
+        self.turn = np.concatenate([self.turn, np.zeros(n)])
+        self.size = np.concatenate([self.size, size])
+
+    def step(self, dt: float) -> None:
+        rng = self.rng
+        n = self.ids.shape[0]
+        # Turn rate: a random walk pulled back to zero, so paths bend and then straighten.
+        self.turn += -0.5 * self.turn * dt + self.turn_std[self.cls] * math.sqrt(
+            dt
+        ) * rng.standard_normal(n)
+        self.turn = np.clip(self.turn, -self.max_turn[self.cls], self.max_turn[self.cls])
+        # Speed relaxes towards a per-object cruise speed that itself drifts now and then.
+        change = rng.random(n) < 0.01
+        lo, hi = self.speed_range[self.cls, 0], self.speed_range[self.cls, 1]
+        self.target_speed = np.where(change, rng.uniform(lo, hi), self.target_speed)
+        self.speed += (self.target_speed - self.speed) * min(1.0, 0.5 * dt)
+        # Exact CTRV integration (straight-line limit for tiny turn rates).
+        w = self.turn
+        v = self.speed
+        small = np.abs(w) < 1e-6
+        safe_w = np.where(small, 1.0, w)
+        new_yaw = self.yaw + w * dt
+        dx = np.where(
+            small,
+            v * dt * np.cos(self.yaw),
+            v / safe_w * (np.sin(new_yaw) - np.sin(self.yaw)),
+        )
+        dy = np.where(
+            small,
+            v * dt * np.sin(self.yaw),
+            v / safe_w * (np.cos(self.yaw) - np.cos(new_yaw)),
+        )
+        self.xy += np.stack([dx, dy], axis=1)
+        self.yaw = wrap_angle(new_yaw)
+        self._replace_leavers()
+
+    def _replace_leavers(self) -> None:
+        half = self.config.area / 2
+        gone = (np.abs(self.xy) > half).any(axis=1)
+        k = int(gone.sum())
+        if k == 0:
+            return
+        keep = ~gone
+        for name in ("ids", "cls", "xy", "yaw", "speed", "target_speed", "turn", "size"):
+            setattr(self, name, getattr(self, name)[keep])
+        # Newcomers enter from a random edge, heading roughly inwards.
+        rng = self.rng
+        edge = rng.integers(0, 4, size=k)
+        along = rng.uniform(-half, half, size=k)
+        inset = half - 0.5
+        x = np.select([edge == 0, edge == 1, edge == 2], [-inset, inset, along], along)
+        y = np.select([edge == 0, edge == 1, edge == 2], [along, along, -inset], inset)
+        inward = np.select([edge == 0, edge == 1, edge == 2], [0.0, np.pi, np.pi / 2], -np.pi / 2)
+        yaw = wrap_angle(inward + rng.uniform(-0.6, 0.6, size=k))
+        self._spawn(np.stack([x, y], axis=1), yaw)
+
+    def boxes(self) -> Boxes:
+        n = self.ids.shape[0]
+        params = np.empty((n, 7))
+        params[:, 0:2] = self.xy
+        params[:, 2] = self.size[:, 2] / 2  # standing on the ground, z up
+        params[:, 3] = self.yaw
+        params[:, 4:7] = self.size
+        vel = self.speed[:, None] * np.stack([np.cos(self.yaw), np.sin(self.yaw)], axis=1)
+        return Boxes(params=params, score=np.ones(n), cls=self.cls.copy(), velocity=vel)
+
+
+class _Ego:
+    """One fleet vehicle driving a circle about the world centre (deterministic given the seed)."""
+
+    def __init__(self, index: int, config: SimConfig, rng: np.random.Generator) -> None:
+        half = config.area / 2
+        self.radius = rng.uniform(0.25, 0.6) * half
+        self.speed = rng.uniform(*config.ego_speed)
+        self.direction = 1.0 if index % 2 == 0 else -1.0
+        self.phase = rng.uniform(-np.pi, np.pi)
+
+    def pose(self, t: float) -> F64:
+        angle = self.phase + self.direction * self.speed / self.radius * t
+        x, y = self.radius * math.cos(angle), self.radius * math.sin(angle)
+        heading = angle + self.direction * math.pi / 2
+        return pose_matrix(x, y, 0.0, heading)
+
+
+def _angular_halfwidth(local: Boxes) -> tuple[F64, F64, F64]:
+    """Range, bearing and angular half-width of each box's BEV outline seen from the origin."""
+    x, y, yaw = local.x, local.y, local.yaw
+    rng_ = np.hypot(x, y)
+    bearing = np.arctan2(y, x)
+    c, s = np.cos(yaw), np.sin(yaw)
+    hl, hw = local.l / 2, local.w / 2
+    corners_x = (
+        x[:, None]
+        + np.array([1, 1, -1, -1]) * (hl * c)[:, None]
+        - np.array([1, -1, -1, 1]) * (hw * s)[:, None]
+    )
+    corners_y = (
+        y[:, None]
+        + np.array([1, 1, -1, -1]) * (hl * s)[:, None]
+        + np.array([1, -1, -1, 1]) * (hw * c)[:, None]
+    )
+    rel = wrap_angle(np.arctan2(corners_y, corners_x) - bearing[:, None])
+    return rng_, bearing, np.abs(rel).max(axis=1)
+
+
+def occlusion(local: Boxes) -> F64:
+    """Fraction of each box's angular extent hidden behind nearer boxes, seen from the origin.
+
+    Each nearer box hides the overlap of its angular interval with this one's; overlaps are
+    summed (an upper bound when hiders overlap each other) and capped at 1."""
+    n = len(local)
+    if n == 0:
+        return np.zeros(0)
+    dist, bearing, half = _angular_halfwidth(local)
+    d = wrap_angle(bearing[None, :] - bearing[:, None])  # [i, j]: bearing of j relative to i
+    lo = np.maximum(-half[:, None], d - half[None, :])
+    hi = np.minimum(half[:, None], d + half[None, :])
+    overlap = np.clip(hi - lo, 0.0, None)
+    nearer = dist[None, :] < dist[:, None]
+    hidden = (overlap * nearer).sum(axis=1) / np.maximum(2 * half, 1e-9)
+    return np.asarray(np.minimum(hidden, 1.0), dtype=np.float64)
+
+
+class _Detector:
+    """Turns one sensor's view of the world into detections."""
+
+    def __init__(
+        self, config: SimConfig, sensor: SensorSpec, detect_prob: F64, rng: np.random.Generator
+    ) -> None:
+        self.model = config.detector
+        self.sensor = sensor
+        self.detect_prob = detect_prob
+        self.rng = rng
+        self.mean_size = np.array([m.size for m in config.classes.values()])
+        self.n_classes = len(config.classes)
+
+    def in_view(self, local: Boxes) -> Bool:
+        r = np.hypot(local.x, local.y)
+        bearing = np.abs(np.arctan2(local.y, local.x))
+        half_fov = math.radians(self.sensor.fov_deg) / 2
+        return (r <= self.sensor.max_range) & (r >= self.sensor.min_range) & (bearing <= half_fov)
+
+    def detect(self, truth: Boxes, occluded: F64) -> Boxes:
+        m, rng, n = self.model, self.rng, len(truth)
+        r = np.hypot(truth.x, truth.y)
+        p = (
+            self.detect_prob[truth.cls]
+            * (1.0 - m.occlusion_miss * occluded)
+            * (1.0 - m.range_miss * (r / self.sensor.max_range) ** 2)
+        )
+        hit = rng.random(n) < p
+        det = truth.take(hit)
+        k, rr, occ = len(det), r[hit], occluded[hit]
+        params = det.params.copy()
+        sigma = m.centre_noise + m.centre_noise_per_m * rr
+        params[:, 0:2] += sigma[:, None] * rng.standard_normal((k, 2))
+        params[:, 2] += 0.5 * sigma * rng.standard_normal(k)
+        params[:, 3] = wrap_angle(params[:, 3] + m.yaw_noise * rng.standard_normal(k))
+        params[:, 4:7] *= np.clip(1.0 + m.size_noise * rng.standard_normal((k, 3)), 0.5, 1.5)
+        # Partly hidden objects more often come out with a low score.
+        low = rng.random(k) < m.low_score_prob + m.occlusion_low_score * occ
+        score = np.where(low, rng.uniform(*m.score_low, size=k), rng.uniform(*m.score_high, size=k))
+        boxes = [Boxes(params=params, score=score, cls=det.cls.copy())]
+        boxes.append(self._duplicates(boxes[0]))
+        boxes.append(self._false_positives())
+        return _concat(boxes)
+
+    def _duplicates(self, det: Boxes) -> Boxes:
+        m, rng = self.model, self.rng
+        dup = rng.random(len(det)) < m.duplicate_prob
+        d = det.take(dup)
+        k = len(d)
+        params = d.params.copy()
+        # Shifted by a fraction of the box size: overlapping well above any NMS threshold.
+        params[:, 0:2] += 0.08 * d.params[:, 4:6] * rng.standard_normal((k, 2))
+        params[:, 3] = wrap_angle(params[:, 3] + 0.03 * rng.standard_normal(k))
+        score = d.score * rng.uniform(0.5, 0.95, size=k)
+        return Boxes(params=params, score=score, cls=d.cls.copy())
+
+    def _false_positives(self) -> Boxes:
+        m, rng, s = self.model, self.rng, self.sensor
+        k = int(rng.poisson(m.false_positives))
+        half_fov = math.radians(s.fov_deg) / 2
+        r = rng.uniform(max(s.min_range, 3.0), s.max_range, size=k)
+        bearing = rng.uniform(-half_fov, half_fov, size=k)
+        cls = rng.integers(0, self.n_classes, size=k).astype(np.int32)
+        size = self.mean_size[cls] * rng.uniform(0.8, 1.2, size=(k, 3))
+        params = np.empty((k, 7))
+        params[:, 0] = r * np.cos(bearing)
+        params[:, 1] = r * np.sin(bearing)
+        params[:, 2] = size[:, 2] / 2 - s.mount[2]
+        params[:, 3] = rng.uniform(-np.pi, np.pi, size=k)
+        params[:, 4:7] = size
+        high = rng.random(k) < m.false_positive_high
+        score = np.where(
+            high, rng.uniform(*m.score_high, size=k), rng.uniform(*m.score_low, size=k)
+        )
+        return Boxes(params=params, score=score, cls=cls)
+
+
+def _concat(parts: list[Boxes]) -> Boxes:
+    return Boxes(
+        params=np.concatenate([b.params for b in parts]),
+        score=np.concatenate([b.score for b in parts]),
+        cls=np.concatenate([b.cls for b in parts]).astype(np.int32),
+    )
+
+
+class FleetSimulator:
+    """The fleet and its world. ``step()`` returns one ``SensorFrame`` per vehicle sensor."""
+
+    def __init__(self, config: SimConfig | None = None) -> None:
+        self.config = config or SimConfig()
+        cfg = self.config
+        world_seed, ego_seed, det_seed = np.random.SeedSequence(cfg.seed).spawn(3)
+        self._objects = _Objects(cfg, np.random.default_rng(world_seed))
+        ego_rng = np.random.default_rng(ego_seed)
+        self._egos = [_Ego(i, cfg, ego_rng) for i in range(cfg.vehicles)]
+        det_seeds = det_seed.spawn(cfg.vehicles * len(cfg.sensors))
+        self._mounts = [pose_matrix(*s.mount) for s in cfg.sensors]
+        self._detectors = [
+            [
+                _Detector(
+                    cfg,
+                    s,
+                    self._objects.detect_prob,
+                    np.random.default_rng(det_seeds[v * len(cfg.sensors) + j]),
+                )
+                for j, s in enumerate(cfg.sensors)
+            ]
+            for v in range(cfg.vehicles)
+        ]
+        self.frame = 0
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.config.rate_hz
+
+    @property
+    def stamp(self) -> float:
+        """Simulated time (s) of the next frame ``step()`` returns."""
+        return self.frame * self.dt
+
+    @property
+    def streams(self) -> list[tuple[str, str]]:
+        """(vehicle, sensor) of every stream, in the order ``step()`` returns frames."""
+        return [
+            (vehicle_id(v), s.name)
+            for v in range(self.config.vehicles)
+            for s in self.config.sensors
+        ]
+
+    def step(self) -> list[SensorFrame]:
+        t = self.stamp
+        world = self._objects.boxes()
+        ids = self._objects.ids.copy()
+        out: list[SensorFrame] = []
+        for v, ego in enumerate(self._egos):
+            vehicle_pose = ego.pose(t)
+            for j, sensor in enumerate(self.config.sensors):
+                pose = vehicle_pose @ self._mounts[j]
+                out.append(self._observe(v, sensor, self._detectors[v][j], pose, world, ids, t))
+        self._objects.step(self.dt)
+        self.frame += 1
+        return out
+
+    def frames(self, n: int) -> Iterator[list[SensorFrame]]:
+        for _ in range(n):
+            yield self.step()
+
+    def _observe(
+        self,
+        v: int,
+        sensor: SensorSpec,
+        detector: _Detector,
+        pose: F64,
+        world: Boxes,
+        ids: I64,
+        t: float,
+    ) -> SensorFrame:
+        local_all = transform_boxes(world, np.linalg.inv(pose).astype(np.float64))
+        visible = detector.in_view(local_all)
+        local = local_all.take(visible)
+        occluded = occlusion(local)
+        detections = detector.detect(local, occluded)
+        return SensorFrame(
+            vehicle=vehicle_id(v),
+            sensor=sensor.name,
+            seq=self.frame,
+            stamp=t,
+            pose=pose,
+            detections=detections,
+            truth_ids=ids[visible],
+            truth=world.take(visible),
+            truth_ignore=occluded > self.config.truth_ignore_occlusion,
+            truth_occlusion=occluded,
+        )

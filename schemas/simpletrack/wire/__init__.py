@@ -1,0 +1,50 @@
+"""The wire contract of the SimpleTrack service (spec: schemas/README.md)."""
+
+from simpletrack.wire.codec import (
+    DecodedDetections,
+    DecodeLimits,
+    Rejection,
+    decode_detection_frame,
+    decode_message,
+    decode_track_frame,
+    encode,
+    encode_detection_frame,
+    encode_track_frame,
+)
+from simpletrack.wire.columns import BoxArrays, TrackArrays
+from simpletrack.wire.models import (
+    BoxColumns,
+    DetectionFrame,
+    FrameError,
+    SensorSnapshot,
+    SensorStatus,
+    ServiceStatus,
+    TrackColumns,
+    TrackFrame,
+)
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason, WireTrackState
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "BoxArrays",
+    "BoxColumns",
+    "DecodeLimits",
+    "DecodedDetections",
+    "DetectionFrame",
+    "ErrorReason",
+    "FrameError",
+    "Rejection",
+    "SensorSnapshot",
+    "SensorStatus",
+    "ServiceStatus",
+    "TrackArrays",
+    "TrackColumns",
+    "TrackFrame",
+    "WireTrackState",
+    "decode_detection_frame",
+    "decode_message",
+    "decode_track_frame",
+    "encode",
+    "encode_detection_frame",
+    "encode_track_frame",
+]

@@ -1,0 +1,281 @@
+"""Write (or check) the generated artefacts: JSON Schemas under ``schemas/json`` and golden test
+vectors under ``schemas/vectors``.
+
+    python -m simpletrack.wire.generate           # rewrite everything
+    python -m simpletrack.wire.generate --check   # exit 1 and list what differs (CI, tests)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.wire.codec import (
+    Rejection,
+    decode_detection_frame,
+    decode_message,
+    decode_track_frame,
+    encode,
+    encode_detection_frame,
+    encode_track_frame,
+    pack,
+)
+from simpletrack.wire.columns import DETECTION_COLUMNS, TRACK_COLUMNS, BoxArrays, TrackArrays
+from simpletrack.wire.models import MESSAGES, FrameError
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+ROOT = Path(__file__).resolve().parents[2]  # schemas/
+JSON_DIR = ROOT / "json"
+VECTOR_DIR = ROOT / "vectors"
+
+
+def json_schemas() -> dict[str, str]:
+    out = {}
+    for model in MESSAGES:
+        schema = model.model_json_schema()
+        schema["$id"] = f"simpletrack/v{SCHEMA_VERSION}/{model.__name__}"
+        out[f"{model.__name__}.schema.json"] = json.dumps(schema, indent=2, sort_keys=True) + "\n"
+    return out
+
+
+# --- golden vectors ------------------------------------------------------------------------
+
+
+def _f32(values: Any) -> npt.NDArray[np.float32]:
+    return np.array(values, dtype=np.float32)
+
+
+def _boxes(n: int, velocity: bool = False) -> BoxArrays:
+    # Values exactly representable in float32 so the JSON shows them without rounding noise.
+    i = np.arange(n, dtype=np.float32)
+    return BoxArrays(
+        classes=("Car", "Pedestrian"),
+        class_index=(np.arange(n) % 2).astype(np.int32),
+        center=np.stack([10.0 + i, -2.5 * i + 0.0, 0.75 + 0 * i], axis=1).astype(np.float32),
+        size=np.tile(_f32([4.5, 1.75, 1.5]), (n, 1)),
+        yaw=(0.25 * i).astype(np.float32),
+        score=(0.875 - 0.125 * i).astype(np.float64),
+        velocity=np.stack([i, 0.0 - i], axis=1).astype(np.float32) if velocity else None,
+    )
+
+
+_POSE = [0.0, -1.0, 0.0, 100.0, 1.0, 0.0, 0.0, -50.0, 0.0, 0.0, 1.0, 2.0, 0.0, 0.0, 0.0, 1.0]
+
+_HEADER: dict[str, Any] = {
+    "vehicle": "truck-07",
+    "sensor": "lidar_top",
+    "seq": 42,
+    "stamp_ns": 1_700_000_000_100_000_000,
+}
+
+
+def _detections(**over: Any) -> bytes:
+    kw: dict[str, Any] = {**_HEADER, "frame_id": "lidar_top", "boxes": _boxes(3)}
+    kw.update(over)
+    return encode_detection_frame(**kw)
+
+
+def _raw(mutate: Callable[[dict[str, Any]], None]) -> bytes:
+    import msgpack
+
+    obj: dict[str, Any] = msgpack.unpackb(_detections(), raw=False)
+    mutate(obj)
+    return pack(obj)
+
+
+def _tracks() -> bytes:
+    n = 2
+    tracks = TrackArrays(
+        classes=("Car", "Pedestrian", "Cyclist"),
+        id=np.array([7, 12], dtype=np.int64),
+        class_index=np.array([0, 1], dtype=np.int32),
+        center=_f32([[10.0, 0.0, 0.75], [11.0, -2.5, 0.75]]),
+        size=_f32([[4.5, 1.75, 1.5], [0.75, 0.5, 1.75]]),
+        yaw=_f32([0.0, 0.25]),
+        score=np.array([0.875, 0.5]),
+        velocity=_f32([[5.0, 0.0, 0.0], [1.0, -1.0, 0.0]]),
+        state=np.array([1, 0], dtype=np.int32),
+        hits=np.array([12, 1], dtype=np.int32),
+        age=np.array([14, 1], dtype=np.int32),
+        time_since_update=np.zeros(n, dtype=np.int32),
+    )
+    return encode_track_frame(
+        **_HEADER,
+        frame_id="lidar_top",
+        pose=None,
+        key_frame=True,
+        instance="simpletrack-a",
+        received_ns=1_700_000_000_130_000_000,
+        published_ns=1_700_000_000_135_000_000,
+        tracks=tracks,
+    )
+
+
+def _error() -> bytes:
+    return encode(
+        FrameError(
+            schema_version=1,
+            vehicle="truck-07",
+            sensor="lidar_top",
+            seq=42,
+            stamp_ns=1_700_000_000_100_000_000,
+            reason=ErrorReason.UNKNOWN_CLASS,
+            field="boxes.classes.1",
+            detail="class 'Tram' is not tracked here; known: Car, Pedestrian, Cyclist",
+            instance="simpletrack-a",
+            received_ns=1_700_000_000_130_000_000,
+        )
+    )
+
+
+def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
+    def mutate(obj: dict[str, Any]) -> None:
+        *parents, last = path.split(".")
+        for p in parents:
+            obj = obj[p]
+        if value is _DELETE:
+            del obj[last]
+        else:
+            obj[last] = value
+
+    return mutate
+
+
+_DELETE = object()
+_NAN_CENTER = _f32([[10.0, 0.0, 0.75], [np.nan, -2.5, 0.75], [12.0, -5.0, 0.75]]).tobytes()
+_ZERO_SIZE = _f32([[4.5, 1.75, 1.5], [4.5, 0.0, 1.5], [4.5, 1.75, 1.5]]).tobytes()
+
+# name -> (message type, payload)
+VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
+    "detection_basic": ("DetectionFrame", _detections),
+    "detection_full": (
+        "DetectionFrame",
+        lambda: _detections(boxes=_boxes(2, velocity=True), pose=_POSE, key_frame=False),
+    ),
+    "detection_empty": ("DetectionFrame", lambda: _detections(boxes=_boxes(0))),
+    "tracks_basic": ("TrackFrame", _tracks),
+    "error_unknown_class": ("FrameError", _error),
+    "invalid_wrong_version": ("DetectionFrame", lambda: _raw(_set("schema_version", 2))),
+    "invalid_missing_field": ("DetectionFrame", lambda: _raw(_set("stamp_ns", _DELETE))),
+    "invalid_extra_field": ("DetectionFrame", lambda: _raw(_set("speed", 1.0))),
+    "invalid_wrong_type": ("DetectionFrame", lambda: _raw(_set("seq", "42"))),
+    "invalid_column_length": ("DetectionFrame", lambda: _raw(_set("boxes.yaw", b"\0" * 8))),
+    "invalid_non_finite": ("DetectionFrame", lambda: _raw(_set("boxes.center", _NAN_CENTER))),
+    "invalid_non_positive_size": (
+        "DetectionFrame",
+        lambda: _raw(_set("boxes.size", _ZERO_SIZE)),
+    ),
+    "invalid_class_index": (
+        "DetectionFrame",
+        lambda: _raw(_set("boxes.class_index", np.array([0, 1, 2], dtype=np.int32).tobytes())),
+    ),
+    "invalid_malformed": ("DetectionFrame", lambda: _detections()[:-5]),
+}
+
+
+def _array_json(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+def decoded_json(kind: str, payload: bytes) -> dict[str, Any]:
+    """What a conforming decoder must produce: fields with columns as (nested) number lists,
+    or the rejection (reason and field) for an invalid payload."""
+    if kind == "DetectionFrame":
+        d = decode_detection_frame(payload)
+        if isinstance(d, Rejection):
+            return {"message": kind, "valid": False, "reason": d.reason.value, "field": d.field}
+        msg = d.frame.model_dump(mode="python")
+        msg["boxes"] = {
+            "count": len(d.boxes),
+            "classes": list(d.boxes.classes),
+            **{c.name: _array_json(getattr(d.boxes, c.name)) for c in DETECTION_COLUMNS},
+        }
+        return {"message": kind, "valid": True, "decoded": msg}
+    if kind == "TrackFrame":
+        t = decode_track_frame(payload)
+        if isinstance(t, Rejection):
+            return {"message": kind, "valid": False, "reason": t.reason.value, "field": t.field}
+        frame, arrays = t
+        msg = frame.model_dump(mode="python")
+        msg["tracks"] = {
+            "count": len(arrays),
+            "classes": list(arrays.classes),
+            **{c.name: _array_json(getattr(arrays, c.name)) for c in TRACK_COLUMNS},
+        }
+        return {"message": kind, "valid": True, "decoded": msg}
+    e = decode_message(payload, FrameError)
+    if isinstance(e, Rejection):
+        return {"message": kind, "valid": False, "reason": e.reason.value, "field": e.field}
+    return {"message": kind, "valid": True, "decoded": e.model_dump(mode="json")}
+
+
+_NUMBER_LIST = re.compile(r"\[[-+0-9.eE,\s]*\]")
+
+
+def _dumps(obj: Any) -> str:
+    """Indented JSON with innermost number lists kept on one line (readable column rows)."""
+    text = json.dumps(obj, indent=1)
+    return (
+        _NUMBER_LIST.sub(lambda m: re.sub(r"\s+", "", m.group(0)).replace(",", ", "), text) + "\n"
+    )
+
+
+def artefacts() -> dict[Path, bytes]:
+    out: dict[Path, bytes] = {JSON_DIR / n: s.encode() for n, s in json_schemas().items()}
+    for name, (kind, make) in VECTORS.items():
+        payload = make()
+        out[VECTOR_DIR / f"{name}.msgpack"] = payload
+        text = _dumps(decoded_json(kind, payload))
+        out[VECTOR_DIR / f"{name}.json"] = text.encode()
+    return out
+
+
+def drift() -> list[str]:
+    """Generated files that are missing, stale, or no longer generated."""
+    want = artefacts()
+    bad = [str(p.relative_to(ROOT)) for p, data in want.items() if not _same(p, data)]
+    for d, pattern in ((JSON_DIR, "*.json"), (VECTOR_DIR, "*")):
+        bad += [str(p.relative_to(ROOT)) for p in d.glob(pattern) if p not in want]
+    return sorted(bad)
+
+
+def _same(path: Path, data: bytes) -> bool:
+    return path.is_file() and path.read_bytes() == data
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m simpletrack.wire.generate", description=__doc__
+    )
+    parser.add_argument("--check", action="store_true", help="only report drift (exit 1)")
+    args = parser.parse_args(argv)
+    if args.check:
+        bad = drift()
+        for p in bad:
+            print(f"stale: schemas/{p}", file=sys.stderr)
+        if bad:
+            print("run: python -m simpletrack.wire.generate", file=sys.stderr)
+        return 1 if bad else 0
+    JSON_DIR.mkdir(exist_ok=True)
+    VECTOR_DIR.mkdir(exist_ok=True)
+    for d, pattern in ((JSON_DIR, "*.json"), (VECTOR_DIR, "*")):
+        for stale in d.glob(pattern):
+            stale.unlink()
+    for path, data in artefacts().items():
+        path.write_bytes(data)
+    print(f"wrote {len(artefacts())} files under {ROOT}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

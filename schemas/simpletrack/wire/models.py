@@ -1,0 +1,243 @@
+"""Pydantic models of every wire message. They validate the msgpack map *structure*; the
+column contents (lengths, finiteness, sizes) are checked by ``simpletrack.wire.codec``.
+
+All messages are msgpack maps with string keys. Optional fields may be absent or nil.
+Unknown keys are rejected (``extra_field``) so that typos never pass silently.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field
+
+from simpletrack.wire.columns import (
+    DETECTION_SPECS,
+    TRACK_SPECS,
+    BoxArrays,
+    ColumnSpec,
+    TrackArrays,
+    to_column,
+)
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+# One Zenoh key chunk, also safe as a file name: no '/', wildcards, '@' or leading dot.
+NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$"
+Name = Annotated[str, Field(pattern=NAME_PATTERN, description="letters, digits, _ . - (<= 64)")]
+Int64 = Annotated[int, Field(ge=0, le=2**63 - 1)]
+ClassName = Annotated[str, Field(min_length=1, max_length=64)]
+Pose = Annotated[
+    list[float],
+    Field(
+        min_length=16,
+        max_length=16,
+        description="4x4 rigid transform sensor->world, row-major, float64",
+    ),
+]
+
+
+def _column(spec: ColumnSpec, doc: str) -> Any:
+    default: Any = None if spec.optional else ...
+    return Field(default=default, description=doc, json_schema_extra=spec.json_schema_extra())
+
+
+class WireModel(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+
+class BoxColumns(WireModel):
+    """N detection boxes as columns. Box centre (not bottom), z up, yaw about +z from +x."""
+
+    count: Annotated[int, Field(ge=0, le=2**31 - 1)] = Field(description="N, rows per column")
+    classes: Annotated[list[ClassName], Field(max_length=1024)] = Field(
+        description="class table of this frame; class_index points into it"
+    )
+    class_index: bytes = _column(DETECTION_SPECS["class_index"], "int32 index into classes")
+    center: bytes = _column(DETECTION_SPECS["center"], "float32 x, y, z in metres")
+    size: bytes = _column(DETECTION_SPECS["size"], "float32 l, w, h in metres, all > 0")
+    yaw: bytes = _column(DETECTION_SPECS["yaw"], "float32 radians about +z")
+    score: bytes = _column(DETECTION_SPECS["score"], "float64 detector confidence")
+    velocity: bytes | None = _column(DETECTION_SPECS["velocity"], "float32 vx, vy in m/s")
+
+    @classmethod
+    def from_arrays(
+        cls,
+        classes: list[str] | tuple[str, ...],
+        class_index: npt.ArrayLike,
+        center: npt.ArrayLike,
+        size: npt.ArrayLike,
+        yaw: npt.ArrayLike,
+        score: npt.ArrayLike,
+        velocity: npt.ArrayLike | None = None,
+    ) -> BoxColumns:
+        s = DETECTION_SPECS
+        ci = to_column(class_index, s["class_index"])
+        return cls(
+            count=len(ci) // 4,
+            classes=list(classes),
+            class_index=ci,
+            center=to_column(center, s["center"]),
+            size=to_column(size, s["size"]),
+            yaw=to_column(yaw, s["yaw"]),
+            score=to_column(score, s["score"]),
+            velocity=None if velocity is None else to_column(velocity, s["velocity"]),
+        )
+
+    @classmethod
+    def from_box_arrays(cls, boxes: BoxArrays) -> BoxColumns:
+        return cls.from_arrays(
+            boxes.classes,
+            boxes.class_index,
+            boxes.center,
+            boxes.size,
+            boxes.yaw,
+            boxes.score,
+            boxes.velocity,
+        )
+
+
+class TrackColumns(WireModel):
+    """N tracks as columns; same box convention as ``BoxColumns``."""
+
+    count: Annotated[int, Field(ge=0, le=2**31 - 1)] = Field(description="N, rows per column")
+    classes: Annotated[list[ClassName], Field(max_length=1024)] = Field(
+        description="the service's class table (its tracker configuration's classes)"
+    )
+    id: bytes = _column(TRACK_SPECS["id"], "int64 track id, unique per sensor, never reused")
+    class_index: bytes = _column(TRACK_SPECS["class_index"], "int32 index into classes")
+    center: bytes = _column(TRACK_SPECS["center"], "float32 x, y, z in metres")
+    size: bytes = _column(TRACK_SPECS["size"], "float32 l, w, h in metres")
+    yaw: bytes = _column(TRACK_SPECS["yaw"], "float32 radians about +z")
+    score: bytes = _column(TRACK_SPECS["score"], "float64 track score")
+    velocity: bytes = _column(TRACK_SPECS["velocity"], "float32 vx, vy, vz in m/s")
+    state: bytes = _column(TRACK_SPECS["state"], "int32 0 tentative, 1 confirmed, 2 coasting")
+    hits: bytes = _column(TRACK_SPECS["hits"], "int32 frames with a detection update")
+    age: bytes = _column(TRACK_SPECS["age"], "int32 frames since birth")
+    time_since_update: bytes = _column(
+        TRACK_SPECS["time_since_update"], "int32 frames since the last update"
+    )
+
+    @classmethod
+    def from_track_arrays(cls, t: TrackArrays) -> TrackColumns:
+        s = TRACK_SPECS
+        return cls(
+            count=len(t),
+            classes=list(t.classes),
+            **{name: to_column(getattr(t, name), spec) for name, spec in s.items()},
+        )
+
+
+class _Header(WireModel):
+    schema_version: Literal[1] = Field(description=f"always {SCHEMA_VERSION} for this layout")
+    vehicle: Name
+    sensor: Name
+    seq: Int64 = Field(description="per-sensor sequence number, strictly increasing")
+    stamp_ns: Int64 = Field(description="sensor time of the frame, nanoseconds")
+
+
+class DetectionFrame(_Header):
+    """One sensor frame of 3D detections: ``<prefix>/<vehicle>/<sensor>/detections``."""
+
+    frame_id: Annotated[str, Field(min_length=1, max_length=128)] = Field(
+        description="name of the coordinate frame the boxes are expressed in"
+    )
+    pose: Pose | None = Field(default=None, description="optional sensor->world 4x4, row-major")
+    key_frame: bool = Field(default=True, description="false marks 10 Hz nuScenes non-key frames")
+    boxes: BoxColumns
+
+    def pose_matrix(self) -> npt.NDArray[np.float64] | None:
+        return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
+
+
+class TrackFrame(_Header):
+    """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``.
+
+    ``seq`` and ``stamp_ns`` echo the detection frame's."""
+
+    frame_id: Annotated[str, Field(min_length=1, max_length=128)] = Field(
+        description="the tracking frame: the world frame when a pose was given, else the sensor's"
+    )
+    pose: Pose | None = Field(default=None, description="the detection frame's pose, echoed")
+    key_frame: bool = True
+    instance: Name = Field(description="id of the service instance that tracked the frame")
+    received_ns: Int64 = Field(description="service wall clock (unix ns) at receipt")
+    published_ns: Int64 = Field(description="service wall clock (unix ns) at publication")
+    tracks: TrackColumns
+
+
+class FrameError(WireModel):
+    """A frame that was not tracked: ``<prefix>/<vehicle>/<sensor>/errors``.
+
+    ``vehicle``/``sensor`` come from the key the frame arrived on; ``seq``/``stamp_ns`` are
+    nil when the payload was too broken to read them."""
+
+    schema_version: Literal[1]
+    vehicle: Name
+    sensor: Name
+    seq: Int64 | None = None
+    stamp_ns: Int64 | None = None
+    reason: Annotated[ErrorReason, Field(strict=False)] = Field(
+        description="why: one of the ErrorReason values (schemas/README.md)"
+    )
+    field: Annotated[str, Field(max_length=256)] | None = Field(
+        default=None, description="dotted path of the offending field, e.g. boxes.size"
+    )
+    detail: Annotated[str, Field(max_length=1024)] = Field(description="human-readable")
+    instance: Name
+    received_ns: Int64
+
+
+class SensorStatus(WireModel):
+    vehicle: Name
+    sensor: Name
+    last_seq: Int64 | None
+    last_stamp_ns: Int64 | None
+    frames: Int64
+    active_tracks: Int64
+    idle_s: float
+
+
+class ServiceStatus(WireModel):
+    """Reply of the status queryable ``<prefix>/@simpletrack/<instance>/status``."""
+
+    schema_version: Literal[1]
+    instance: Name
+    version: str
+    preset: str
+    classes: list[str]
+    config_digest: str = Field(description="sha256 of the tracker configuration in use")
+    started_ns: Int64
+    ready: bool
+    queue_depth: Int64
+    sensors: list[SensorStatus]
+
+
+class SensorSnapshot(WireModel):
+    """One sensor's tracker state: the snapshot file format, and the reply of the snapshot
+    queryable ``<prefix>/@simpletrack/<instance>/snapshot/<vehicle>/<sensor>``."""
+
+    schema_version: Literal[1]
+    vehicle: Name
+    sensor: Name
+    last_seq: Int64 | None = None
+    last_stamp_ns: Int64 | None = None
+    stamp_origin_ns: Int64 | None = Field(
+        default=None, description="tracker time 0: the tracker sees (stamp_ns - origin) * 1e-9 s"
+    )
+    id_base: Int64 = Field(default=0, description="added to tracker ids; raised on every reset")
+    id_next: Int64 = Field(default=0, description="lowest id never published on this stream")
+    frames: Int64 = 0
+    config_digest: str = Field(description="sha256 of the tracker configuration")
+    tracker: bytes | None = Field(default=None, description="opaque Tracker.to_bytes() blob")
+    written_ns: Int64
+
+
+MESSAGES: tuple[type[WireModel], ...] = (
+    DetectionFrame,
+    TrackFrame,
+    FrameError,
+    ServiceStatus,
+    SensorSnapshot,
+)

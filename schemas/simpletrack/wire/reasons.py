@@ -1,0 +1,46 @@
+"""Enumerations that travel on the wire: error reasons and track states."""
+
+from __future__ import annotations
+
+from enum import IntEnum, StrEnum
+from typing import Final
+
+SCHEMA_VERSION: Final = 1
+
+
+class ErrorReason(StrEnum):
+    """Why a detection frame was not tracked. The string value is what travels."""
+
+    # Decoding and validation of the payload (simpletrack.wire.codec).
+    TOO_LARGE = "too_large"  # payload bytes or box count over the configured cap
+    MALFORMED = "malformed"  # not msgpack, not a map, trailing bytes, bad UTF-8
+    WRONG_VERSION = "wrong_version"
+    MISSING_FIELD = "missing_field"
+    EXTRA_FIELD = "extra_field"
+    WRONG_TYPE = "wrong_type"
+    INVALID_VALUE = "invalid_value"  # e.g. bad id characters, class_index out of the table
+    COLUMN_LENGTH = "column_length"  # a column's byte length disagrees with boxes.count
+    NON_FINITE = "non_finite"  # NaN or inf in a float column or the pose
+    NON_POSITIVE_SIZE = "non_positive_size"
+    UNKNOWN_CLASS = "unknown_class"  # a class name the tracker configuration does not know
+    # Routing and per-sensor ordering (service).
+    KEY_MISMATCH = "key_mismatch"  # vehicle/sensor in the payload differ from the key
+    OUT_OF_ORDER = "out_of_order"  # stamp_ns not after the sensor's last processed stamp
+    SEQ_NOT_INCREASING = "seq_not_increasing"
+    DUPLICATE_SEQ = "duplicate_seq"  # same seq as the last processed frame: ignored
+    TOO_MANY_SENSORS = "too_many_sensors"
+    # Load shedding: the frame was valid as far as anyone looked, but not processed.
+    DROPPED_QUEUE_FULL = "dropped_queue_full"  # backpressure drop_oldest: the oldest goes
+    DROPPED_SHUTDOWN = "dropped_shutdown"  # arrived after intake stopped, or drain timed out
+    INTERNAL_ERROR = "internal_error"  # a bug: reported rather than crashing the worker
+
+
+DROP_REASONS = frozenset({ErrorReason.DROPPED_QUEUE_FULL, ErrorReason.DROPPED_SHUTDOWN})
+
+
+class WireTrackState(IntEnum):
+    """Track state codes in ``TrackFrame.tracks.state``."""
+
+    TENTATIVE = 0  # fewer than min_hits hits so far
+    CONFIRMED = 1  # confirmed and updated on this frame
+    COASTING = 2  # confirmed, but not updated on this frame (time_since_update > 0)

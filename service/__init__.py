@@ -1,1 +1,0 @@
-"""SimpleTrack streaming service: the pure tracker core (service.core) and its Zenoh edges."""

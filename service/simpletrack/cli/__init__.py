@@ -1,0 +1,1 @@
+"""The ``simpletrack`` command: ``main.py`` parses, one module per subcommand registers itself."""

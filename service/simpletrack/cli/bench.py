@@ -1,0 +1,358 @@
+"""``simpletrack bench core|service``: the tracker's cost curve, the service's latency and
+capacity. Figures are printed, written as JSON (``--json``) and drawn (``--plot-dir``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from simpletrack.cli.errors import UserError
+
+DEFAULT_DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+
+EPILOG = """\
+examples:
+  # the tracker alone: all 150 nuScenes scenes, the 10 KITTI sequences, the scaling sweep
+  simpletrack bench core --json out/bench-core.json --plot-dir out/
+
+  # a quick look: 10 scenes, 2 KITTI sequences, a short sweep
+  simpletrack bench core --scenes 10 --kitti-sequences 2 --sizes 10,100,500
+
+  # the running service under 1..500 sensors at 10 Hz, with the Zenoh echo floor
+  simpletrack bench service --json out/bench-service.json --plot-dir out/
+
+  # profile the service with py-spy while it is under load (pip install py-spy)
+  simpletrack bench service --sensors 1,10,20 --profile out/profiles/
+
+Figures depend on the machine and on what else runs on it: quote medians and ratios from one
+run, with the load average the JSON records. docs/BENCHMARKS.md explains every figure.
+"""
+
+CORE_EPILOG = """\
+what it measures:
+  per load (nuScenes val, preset nuscenes, 7 classes in one tracker per scene; KITTI train,
+  preset kitti, Car alone and all 3 classes in one tracker per sequence): frames/s and the
+  per-frame latency of Tracker.step (files are parsed first, not timed); then, in a second
+  pass with timing shims on the functions step calls, ms per frame in each stage (nms,
+  predict, cost_matrix, assignment, update, lifecycle, output, other).
+  The sweep: synthetic frames of N cars (one class) and as many live tracks, per-frame time
+  against N on a log-log plot with the fitted growth exponent.
+  The speed-up against the reference uses its authors' own measurement on this machine kind
+  (../shared/data/reference/README.md: median 0.35 s per nuScenes frame, p99 1.6 s).
+
+examples:
+  simpletrack bench core
+  simpletrack bench core --scenes 20 --kitti-sequences 0 --sizes 10,100,1000 --json core.json
+  simpletrack bench core --scenes 0 --kitti-sequences 0 --plot-dir plots/   # sweep only
+"""
+
+SERVICE_EPILOG = """\
+what it measures (one step per sensor count S, each with a fresh server):
+  a spawned load generator publishes S sensors x 10 Hz of real nuScenes frames (cycled; all
+  10 detector classes, the 3 untracked ones dropped by the service's ignore_classes) to a
+  fresh `simpletrack serve --preset nuscenes` on 127.0.0.1, and times each track frame from
+  just before `put` to its receipt (one process, one monotonic clock). Reported: p50/p99/max,
+  delivered frames/s, the server's CPU per frame (/proc/<pid>/stat over the window), frames
+  refused/dropped (errors key and /metrics) and never answered. The same load against an
+  echo process (no tracker) is the Zenoh floor. A step passes with p99 < --p99-limit and
+  nothing refused, dropped or lost; S stops growing once a step saturates (a frame refused,
+  dropped or lost, or the median over --p99-limit: the server fell behind).
+
+examples:
+  simpletrack bench service
+  simpletrack bench service --sensors 1,5,10,20 --seconds 10 --json service.json --plot-dir plots/
+  simpletrack bench service --sensors 2 --seconds 1 --source synthetic --no-echo   # smoke
+"""
+
+
+def _int_list(text: str, what: str, low: int, high: int) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise UserError(f"{what} {text!r} must be a comma-separated list of integers") from None
+    if not values or any(not (low <= v <= high) for v in values):
+        raise UserError(f"{what} {text!r}: every value must be in {low}..{high}")
+    if list(values) != sorted(set(values)):
+        raise UserError(f"{what} {text!r} must be increasing, without repeats")
+    return values
+
+
+def _positive(value: float, what: str, high: float) -> float:
+    if not (0 < value <= high):
+        raise UserError(f"{what} {value:g} must be > 0 and <= {high:g}")
+    return value
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser(
+        "bench",
+        help="benchmarks: the tracker core's cost curve, the service's latency and capacity",
+        description="Measure the tracker core (bench core) or the running service (bench "
+        "service); print a table, write every figure as JSON and draw PNG plots.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
+    sub = p.add_subparsers(dest="bench", metavar="WHAT", required=True)
+
+    core = sub.add_parser(
+        "core",
+        help="the tracker alone on nuScenes, KITTI and a synthetic scaling sweep",
+        description="Frames/s, per-frame latency and time per stage of Tracker.step.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=CORE_EPILOG,
+    )
+    core.add_argument(
+        "--data",
+        type=Path,
+        default=DEFAULT_DATA,
+        help=f"the shared data directory (default {DEFAULT_DATA})",
+    )
+    core.add_argument(
+        "--scenes",
+        type=int,
+        default=150,
+        help="nuScenes val scenes to run, 0 to skip (default all 150)",
+    )
+    core.add_argument(
+        "--kitti-sequences",
+        type=int,
+        default=10,
+        help="KITTI train sequences to run, 0 to skip (default all 10)",
+    )
+    core.add_argument(
+        "--sizes",
+        default="10,50,100,200,500,1000",
+        help="boxes per frame of the sweep, or 'none' (default 10,...,1000)",
+    )
+    core.add_argument(
+        "--sweep-frames",
+        type=int,
+        default=20,
+        help="timed frames per sweep size (fewer past --sweep-budget; default 20)",
+    )
+    core.add_argument(
+        "--sweep-budget",
+        type=float,
+        default=5.0,
+        help="seconds of timed frames per sweep size, at least 3 frames (default 5)",
+    )
+    core.add_argument("--json", type=Path, help="write every figure to this JSON file")
+    core.add_argument("--plot-dir", type=Path, help="write core_scaling.png and core_stages.png")
+    core.set_defaults(func=run_core)
+
+    svc = sub.add_parser(
+        "service",
+        help="latency, CPU and capacity of `simpletrack serve` under a load generator",
+        description="A real service and a separate load-generator process on 127.0.0.1.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=SERVICE_EPILOG,
+    )
+    svc.add_argument(
+        "--sensors",
+        default="1,10,50,100,200,500",
+        help="sensor counts to step through (default 1,10,50,100,200,500)",
+    )
+    svc.add_argument(
+        "--seconds",
+        type=float,
+        default=20.0,
+        help="measured seconds per step, after the warm-up (default 20)",
+    )
+    svc.add_argument(
+        "--warmup", type=float, default=1.0, help="seconds of load before measuring (default 1)"
+    )
+    svc.add_argument("--rate", type=float, default=10.0, help="frames/s per sensor (default 10)")
+    svc.add_argument("--workers", type=int, default=2, help="service worker threads (default 2)")
+    svc.add_argument(
+        "--queue-size", type=int, default=64, help="service frames queued per worker (default 64)"
+    )
+    svc.add_argument(
+        "--source",
+        choices=("nuscenes", "synthetic"),
+        default="nuscenes",
+        help="real nuScenes frames (default) or synthetic ones (no data needed)",
+    )
+    svc.add_argument(
+        "--data",
+        type=Path,
+        default=DEFAULT_DATA,
+        help=f"the shared data directory (default {DEFAULT_DATA})",
+    )
+    svc.add_argument(
+        "--synthetic-boxes",
+        type=int,
+        default=128,
+        help="boxes per synthetic frame (default 128, the nuScenes mean)",
+    )
+    svc.add_argument(
+        "--p99-limit",
+        type=float,
+        default=50.0,
+        help="a step passes with p99 under this many ms (default 50)",
+    )
+    svc.add_argument(
+        "--budget",
+        type=float,
+        default=420.0,
+        help="no new step starts past this many seconds in total (default 420)",
+    )
+    svc.add_argument("--no-echo", action="store_true", help="skip the Zenoh echo floor")
+    svc.add_argument(
+        "--profile",
+        type=Path,
+        metavar="DIR",
+        help="record each service step with py-spy into DIR (needs py-spy)",
+    )
+    svc.add_argument("--json", type=Path, help="write every figure to this JSON file")
+    svc.add_argument(
+        "--plot-dir", type=Path, help="write service_latency_cdf.png and service_capacity.png"
+    )
+    svc.set_defaults(func=run_service)
+
+
+def _out_paths(args: argparse.Namespace) -> None:
+    for path in (args.json.parent if args.json else None, args.plot_dir):
+        if path is not None:
+            try:
+                path.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise UserError(f"cannot create {path}: {exc.strerror}") from None
+
+
+def _write_json(path: Path | None, doc: dict[str, Any]) -> None:
+    if path is not None:
+        path.write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {path}")
+
+
+# ----------------------------------------------------------------------------- core
+def run_core(args: argparse.Namespace) -> int:
+    from simpletrack.bench import plots
+    from simpletrack.bench.core import CoreOptions
+    from simpletrack.bench.core import run_core as bench
+    from simpletrack.bench.report import core_tables
+    from simpletrack.bench.stats import machine
+
+    if not (0 <= args.scenes <= 150):
+        raise UserError(f"--scenes {args.scenes} must be in 0..150")
+    if not (0 <= args.kitti_sequences <= 10):
+        raise UserError(f"--kitti-sequences {args.kitti_sequences} must be in 0..10")
+    sizes = () if args.sizes == "none" else _int_list(args.sizes, "--sizes", 1, 20000)
+    if args.sweep_frames < 3:
+        raise UserError(f"--sweep-frames {args.sweep_frames} must be at least 3")
+    _positive(args.sweep_budget, "--sweep-budget", 3600)
+    if args.scenes and not (args.data / "nuscenes" / "centerpoint_val").is_dir():
+        raise UserError(
+            f"no nuScenes detections under {args.data / 'nuscenes'}: give --data, "
+            "or --scenes 0 to skip them"
+        )
+    if args.kitti_sequences and not (args.data / "kitti" / "detections").is_dir():
+        raise UserError(
+            f"no KITTI detections under {args.data / 'kitti'}: give --data, "
+            "or --kitti-sequences 0 to skip them"
+        )
+    _out_paths(args)
+    before = machine()
+    opts = CoreOptions(
+        args.data, args.scenes, args.kitti_sequences, sizes, args.sweep_frames, args.sweep_budget
+    )
+    result = bench(opts, progress=lambda m: print(m, file=sys.stderr, flush=True))
+    doc = {
+        "benchmark": "core",
+        "command": "simpletrack " + " ".join(sys.argv[1:]),
+        "machine_before": before,
+        "machine_after": machine(),
+        **result,
+    }
+    print(core_tables(doc))
+    if args.plot_dir is not None:
+        written = []
+        if result["sweep"]:
+            written.append(plots.core_scaling(result["sweep"], args.plot_dir / "core_scaling.png"))
+        if result["loads"]:
+            written.append(plots.core_stages(result["loads"], args.plot_dir / "core_stages.png"))
+        doc["plots"] = [str(p) for p in written]
+        for p in written:
+            print(f"wrote {p}")
+    _write_json(args.json, doc)
+    return 0
+
+
+# ----------------------------------------------------------------------------- service
+def run_service(args: argparse.Namespace) -> int:
+    from simpletrack.bench import plots
+    from simpletrack.bench.report import service_tables
+    from simpletrack.bench.service import BenchError, ServiceBenchOptions, run_service_bench
+    from simpletrack.bench.stats import machine
+
+    sensors = _int_list(args.sensors, "--sensors", 1, 1000)  # the service's max_sensors
+    _positive(args.seconds, "--seconds", 3600)
+    _positive(args.rate, "--rate", 1000)
+    _positive(args.budget, "--budget", 24 * 3600)
+    _positive(args.p99_limit, "--p99-limit", 1e6)
+    if args.warmup < 0 or args.warmup > 600:
+        raise UserError(f"--warmup {args.warmup:g} must be in 0..600 seconds")
+    if not (1 <= args.workers <= 64):
+        raise UserError(f"--workers {args.workers} must be in 1..64")
+    if not (1 <= args.queue_size <= 100_000):
+        raise UserError(f"--queue-size {args.queue_size} must be in 1..100000")
+    if not (1 <= args.synthetic_boxes <= 10_000):
+        raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
+    scenes = args.data / "nuscenes" / "centerpoint_val"
+    if args.source == "nuscenes" and not scenes.is_dir():
+        raise UserError(
+            f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
+        )
+    if args.profile is not None:
+        import shutil
+
+        if not (shutil.which("py-spy") or (Path(sys.executable).parent / "py-spy").exists()):
+            raise UserError("--profile needs py-spy (pip install py-spy)")
+    _out_paths(args)
+    opts = ServiceBenchOptions(
+        sensors=sensors,
+        seconds=args.seconds,
+        warmup_s=args.warmup,
+        rate_hz=args.rate,
+        workers=args.workers,
+        queue_size=args.queue_size,
+        source=args.source,
+        data=scenes,
+        synthetic_boxes=args.synthetic_boxes,
+        budget_s=args.budget,
+        echo=not args.no_echo,
+        profile_dir=args.profile,
+        p99_limit_ms=args.p99_limit,
+    )
+    before = machine()
+    try:
+        result = run_service_bench(opts, progress=lambda m: print(m, file=sys.stderr, flush=True))
+    except BenchError as exc:
+        raise UserError(str(exc)) from None
+    doc = {
+        "benchmark": "service",
+        "command": "simpletrack " + " ".join(sys.argv[1:]),
+        "clock": "time.monotonic_ns() of the load-generator process (publisher and subscriber)",
+        "options": {
+            k: str(v) if isinstance(v, Path) else v
+            for k, v in vars(args).items()
+            if k not in ("func",)
+        },
+        "machine_before": before,
+        "machine_after": machine(),
+        **result,
+    }
+    print(service_tables(doc))
+    if args.plot_dir is not None and result["steps"]:
+        written = [
+            plots.service_cdf(result["steps"], args.plot_dir / "service_latency_cdf.png"),
+            plots.service_capacity(result["steps"], args.plot_dir / "service_capacity.png"),
+        ]
+        doc["plots"] = [str(p) for p in written]
+        for p in written:
+            print(f"wrote {p}")
+    _write_json(args.json, doc)
+    return 0

@@ -1,0 +1,164 @@
+"""``simpletrack record``: write the tracks the service publishes to files."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from types import FrameType
+
+import zenoh
+
+from simpletrack.cli.common import (
+    ZENOH_NOTE,
+    add_client_args,
+    check_prefix,
+    client_options,
+    open_client_session,
+)
+from simpletrack.cli.errors import UserError
+from simpletrack.client.subscriber import TrackSubscriber
+from simpletrack.datasets.recording import JsonlWriter, KittiWriter, message_to_json
+
+EPILOG = f"""\
+formats:
+  jsonl   OUT/tracks.jsonl, one line per track frame of any stream (layout in
+          clients/README.md); `simpletrack plot` reads it.
+  kitti   OUT/data_0/<sensor>.txt, KITTI tracking results, one file per stream named by its
+          sensor id (what `replay kitti` uses: the sequence, e.g. 0000), boxes converted back
+          to the KITTI camera frame, scores as logits. Give --calib (KITTI calib folder) for
+          the 2D boxes that `simpletrack eval kitti --results OUT/data_0` needs.
+
+Stops on Ctrl-C or SIGTERM (exit 0, files complete), after --frames N frames, after
+--duration S seconds, or after --idle S seconds without frames once some arrived.
+
+{ZENOH_NOTE}
+
+examples:
+  # everything the fleet's planners would receive, as JSON lines, until Ctrl-C
+  simpletrack record --out out/rec
+
+  # a KITTI replay, ready for the evaluator
+  simpletrack record --keys 'fleet/kitti/*/tracks' --format kitti \\
+      --calib ../shared/data/kitti/calib --out out/kitti-zenoh --idle 5
+  simpletrack eval kitti --results out/kitti-zenoh/data_0 --seqs 0000
+
+  # one vehicle's lidar, 500 frames
+  simpletrack record --keys 'fleet/veh01/lidar/tracks' --frames 500 --out out/veh01
+"""
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser(
+        "record",
+        help="record published tracks to files (KITTI results or JSON lines)",
+        description="Subscribe to track frames by key expression and write them to files.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
+    p.add_argument(
+        "--keys",
+        help="key expression of the track frames (default: <prefix>/*/*/tracks, the whole fleet)",
+    )
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--format", choices=("jsonl", "kitti"), default="jsonl", help="default jsonl")
+    p.add_argument("--frames", type=int, help="stop after this many frames")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--idle", type=float, help="stop after this many seconds without frames")
+    p.add_argument("--calib", type=Path, help="KITTI calib folder (<sensor>.txt) for 2D boxes")
+    p.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+    add_client_args(p)
+    p.set_defaults(func=run)
+
+
+def _check(args: argparse.Namespace) -> str:
+    prefix = check_prefix(args.prefix)
+    keys = args.keys or f"{prefix}/*/*/tracks"
+    try:
+        zenoh.KeyExpr(keys)
+    except (zenoh.ZError, ValueError) as exc:
+        raise UserError(f"--keys {keys!r} is not a valid key expression: {exc}") from None
+    for flag in ("frames", "duration", "idle"):
+        value = getattr(args, flag)
+        if value is not None and value <= 0:
+            raise UserError(f"--{flag} {value} must be positive")
+    if args.calib is not None:
+        if args.format != "kitti":
+            raise UserError("--calib applies to --format kitti only")
+        if not args.calib.is_dir():
+            raise UserError(f"--calib {args.calib}: no such folder")
+    if args.out.exists() and not args.out.is_dir():
+        raise UserError(f"--out {args.out} exists and is not a folder")
+    return keys
+
+
+def run(args: argparse.Namespace) -> int:
+    keys = _check(args)
+    options = client_options(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    session = open_client_session(options)
+    jsonl = JsonlWriter(args.out / "tracks.jsonl") if args.format == "jsonl" else None
+    kitti = KittiWriter(args.out, args.calib) if args.format == "kitti" else None
+    frames = 0
+    streams: set[tuple[str, str]] = set()
+    started = time.monotonic()
+    last = None
+    reason = "interrupted"
+    try:
+        sub = TrackSubscriber(session, key_expr=keys)
+        if not args.quiet:
+            print(
+                f"recording {keys} to {args.out} ({args.format}); Ctrl-C to stop",
+                file=sys.stderr,
+                flush=True,
+            )
+        while not stop.is_set():
+            now = time.monotonic()
+            if args.duration is not None and now - started >= args.duration:
+                reason = "duration reached"
+                break
+            if args.idle is not None and last is not None and now - last >= args.idle:
+                reason = f"idle for {args.idle:g} s"
+                break
+            msg = sub.recv(timeout=0.2)
+            if msg is None:
+                continue
+            last = time.monotonic()
+            if jsonl is not None:
+                jsonl.write(message_to_json(msg))
+            if kitti is not None:
+                try:
+                    kitti.write(msg)
+                except FileNotFoundError as exc:
+                    raise UserError(str(exc)) from None
+            frames += 1
+            streams.add((msg.vehicle, msg.sensor))
+            if args.frames is not None and frames >= args.frames:
+                reason = f"{frames} frames"
+                break
+        invalid = sub.invalid
+        sub.close()
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+        paths = kitti.close() if kitti is not None else []
+        if jsonl is not None:
+            jsonl.close()
+            paths = [jsonl.path]
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    where = ", ".join(str(p) for p in paths[:4]) + (", ..." if len(paths) > 4 else "")
+    print(
+        f"record: {reason}: {frames} frames from {len(streams)} stream(s) in "
+        f"{time.monotonic() - started:.1f} s to {where or args.out}"
+        + (f"; {invalid} undecodable frames skipped" if invalid else "")
+    )
+    return 0

@@ -1,0 +1,107 @@
+"""``simpletrack serve``: run the tracking service until SIGTERM/SIGINT."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from simpletrack.cli.errors import UserError
+from simpletrack.server import logs
+from simpletrack.server.settings import load_settings
+from simpletrack.session import add_zenoh_args, zenoh_overrides
+
+EPILOG = """\
+Settings come from defaults, then --config FILE (TOML or YAML), then SIMPLETRACK_* environment
+variables (nested with __, e.g. SIMPLETRACK_ZENOH__MODE=client), then these flags. Every
+setting is listed in docs/SERVICE.md.
+
+key expressions (prefix "fleet" by default):
+  in   <prefix>/<vehicle>/<sensor>/detections   DetectionFrame (msgpack, schemas/README.md)
+  out  <prefix>/<vehicle>/<sensor>/tracks       TrackFrame
+  out  <prefix>/<vehicle>/<sensor>/errors       FrameError (reason, offending seq)
+       <prefix>/@simpletrack/<instance>/status  queryable: ServiceStatus
+
+examples:
+  # embedded peer on loopback, metrics on :9464, snapshots in ./state
+  simpletrack serve --listen tcp/127.0.0.1:7447 --state-dir ./state
+  # client of two routers, settings file, nuScenes classes
+  simpletrack serve --mode client --connect tcp/10.0.0.1:7447 --connect tcp/10.0.0.2:7447 \\
+      --config /etc/simpletrack.toml --preset nuscenes
+  curl -s localhost:9464/metrics | grep simpletrack_frames
+"""
+
+
+def register(subparsers: Any) -> None:
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        "serve",
+        help="run the tracking service over Zenoh",
+        description="Consume detection frames over Zenoh, track every sensor, publish tracks.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
+    p.add_argument("--config", type=Path, metavar="FILE", help="TOML or YAML settings file")
+    add_zenoh_args(p)
+    p.add_argument("--metrics-port", type=int, metavar="PORT", help="HTTP port (0: off)")
+    p.add_argument("--state-dir", type=Path, metavar="DIR", help="snapshot directory")
+    p.add_argument("--prefix", metavar="PREFIX", help="first key chunk(s) (default fleet)")
+    p.add_argument("--instance", metavar="ID", help="instance id (default from hostname)")
+    p.add_argument("--preset", choices=["kitti", "wod", "nuscenes"], help="tracker preset")
+    p.add_argument("--class-overrides", type=Path, metavar="FILE", help="per-class overrides")
+    p.add_argument("--workers", type=int, metavar="N", help="tracker threads")
+    p.add_argument(
+        "--backpressure", choices=["drop_oldest", "block"], help="what a full queue does"
+    )
+    p.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
+    p.add_argument("--log-format", choices=["json", "kv"])
+    p.set_defaults(func=run)
+
+
+_FLAGS = (
+    "metrics_port",
+    "state_dir",
+    "prefix",
+    "instance",
+    "preset",
+    "class_overrides",
+    "workers",
+    "backpressure",
+    "log_level",
+    "log_format",
+)
+
+
+def run(args: argparse.Namespace) -> int:
+    overrides: dict[str, Any] = {
+        k: getattr(args, k) for k in _FLAGS if getattr(args, k) is not None
+    }
+    if z := zenoh_overrides(args):
+        overrides["zenoh"] = z
+    if args.config is not None and not args.config.is_file():
+        raise UserError(f"--config {args.config}: no such file")
+    try:
+        settings = load_settings(args.config, overrides)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    logs.configure(settings.log_format, settings.log_level)
+    zenoh.init_log_from_env_or("error")
+    # The tracker's many short numpy calls hold the GIL between them; at Python's default 5 ms
+    # switch interval Zenoh's delivery threads wait behind a busy worker (measured: 10-sensor
+    # p99 77 ms at 5 ms, 8 ms at 0.5 ms).
+    sys.setswitchinterval(settings.gil_switch_interval_ms / 1000.0)
+
+    from simpletrack.server import app  # heavy imports only once the arguments are known to be good
+
+    try:
+        return app.run(settings)
+    except ValueError as e:  # bad tracker overrides, ignore_classes
+        raise UserError(str(e)) from None
+    except OSError as e:  # metrics port taken, state dir not writable
+        raise UserError(
+            f"{e.strerror or e}: {getattr(e, 'filename', '') or ''}".rstrip(": ")
+        ) from None
+    except zenoh.ZError as e:
+        raise UserError(f"cannot open the Zenoh session: {e}") from None

@@ -1,0 +1,236 @@
+"""``simpletrack watch``: a live table of the track frames a planner would receive."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from types import FrameType
+
+import numpy as np
+import zenoh
+from rich.console import Console, Group
+from rich.table import Table
+from rich.text import Text
+
+from simpletrack.cli.common import (
+    ZENOH_NOTE,
+    add_client_args,
+    check_prefix,
+    client_options,
+    open_client_session,
+)
+from simpletrack.cli.errors import UserError
+from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
+from simpletrack.wire import WireTrackState
+
+EPILOG = f"""\
+One row per stream (vehicle/sensor): last seq, frames received, rate, latency from the sensor
+stamp to arrival here (p50/p99 of the last 200 frames; meaningful when sensors stamp with
+wall-clock time), tracks by state. With --detail VEHICLE/SENSOR (or when one stream matches),
+also that stream's tracks, nearest first. Not on a terminal: one line per stream every
+--interval seconds. Ends on Ctrl-C (exit 0) or after --duration.
+
+{ZENOH_NOTE}
+
+examples:
+  simpletrack watch                                  # the whole fleet
+  simpletrack watch --keys 'fleet/veh01/*/tracks'    # one vehicle
+  simpletrack watch --detail veh01/lidar --rows 25   # and that sensor's tracks
+"""
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser(
+        "watch",
+        help="live terminal table of the tracks a planner receives",
+        description="Subscribe to track frames by key expression and show them live.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
+    p.add_argument("--keys", help="key expression (default: <prefix>/*/*/tracks, the whole fleet)")
+    p.add_argument("--detail", metavar="VEHICLE/SENSOR", help="also list this stream's tracks")
+    p.add_argument("--rows", type=int, default=15, help="tracks listed in the detail (15)")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--interval", type=float, default=2.0, help="seconds between plain lines (2)")
+    add_client_args(p)
+    p.set_defaults(func=run)
+
+
+@dataclass
+class StreamView:
+    last: TrackMessage
+    frames: int = 0
+    latency: deque[float] = field(default_factory=lambda: deque(maxlen=200))
+    arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=64))
+
+    def add(self, msg: TrackMessage, now: float) -> None:
+        self.last = msg
+        self.frames += 1
+        self.latency.append(msg.latency_s)
+        self.arrivals.append(now)
+
+    def rate(self, now: float) -> float:
+        recent = [t for t in self.arrivals if now - t <= 3.0]
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9) if len(recent) > 1 else 0.0
+
+    def states(self) -> tuple[int, int, int]:
+        s = self.last.tracks.state
+        return (
+            int((s == WireTrackState.CONFIRMED).sum()),
+            int((s == WireTrackState.TENTATIVE).sum()),
+            int((s == WireTrackState.COASTING).sum()),
+        )
+
+
+def _q(values: deque[float], q: float) -> str:
+    if not values:
+        return "-"
+    v = float(np.quantile(np.fromiter(values, float), q)) * 1e3
+    return f"{v:.1f}" if abs(v) < 1e6 else "-"
+
+
+def render(
+    views: dict[str, StreamView], keys: str, detail: str | None, rows: int, now: float
+) -> Group:
+    table = Table(header_style="bold")
+    for name in (
+        "stream",
+        "seq",
+        "frames",
+        "Hz",
+        "p50 ms",
+        "p99 ms",
+        "confirmed",
+        "tentative",
+        "coasting",
+        "frame",
+        "age s",
+    ):
+        table.add_column(name, justify="left" if name in ("stream", "frame") else "right")
+    for name, v in sorted(views.items()):
+        confirmed, tentative, coasting = v.states()
+        table.add_row(
+            name,
+            str(v.last.seq),
+            str(v.frames),
+            f"{v.rate(now):.1f}",
+            _q(v.latency, 0.5),
+            _q(v.latency, 0.99),
+            str(confirmed),
+            str(tentative),
+            str(coasting),
+            v.last.frame.frame_id,
+            f"{(time.time_ns() - v.last.received_ns) * 1e-9:.1f}",
+        )
+    parts: list[object] = [Text(f"watching {keys}: {len(views)} stream(s)", style="bold"), table]
+    chosen = detail or (next(iter(views)) if len(views) == 1 else None)
+    if chosen in views:
+        parts.append(_detail(views[chosen].last, chosen, rows))
+    return Group(*parts)  # type: ignore[arg-type]
+
+
+def _detail(msg: TrackMessage, name: str, rows: int) -> Table:
+    t = msg.tracks
+    order = np.argsort(np.hypot(t.center[:, 0], t.center[:, 1]))[:rows]
+    names = msg.class_names()
+    table = Table(
+        title=f"{name} seq {msg.seq}: {len(t)} tracks, nearest first", header_style="bold"
+    )
+    for col in ("id", "class", "x", "y", "yaw", "speed m/s", "score", "state", "hits", "age"):
+        table.add_column(col, justify="left" if col in ("class", "state") else "right")
+    for i in order.tolist():
+        table.add_row(
+            str(int(t.id[i])),
+            names[i],
+            f"{t.center[i, 0]:.1f}",
+            f"{t.center[i, 1]:.1f}",
+            f"{t.yaw[i]:.2f}",
+            f"{math.hypot(float(t.velocity[i, 0]), float(t.velocity[i, 1])):.1f}",
+            f"{t.score[i]:.2f}",
+            WireTrackState(int(t.state[i])).name.lower(),
+            str(int(t.hits[i])),
+            str(int(t.age[i])),
+        )
+    return table
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.live import Live
+
+    prefix = check_prefix(args.prefix)
+    keys = args.keys or f"{prefix}/*/*/tracks"
+    try:
+        zenoh.KeyExpr(keys)
+    except (zenoh.ZError, ValueError) as exc:
+        raise UserError(f"--keys {keys!r} is not a valid key expression: {exc}") from None
+    for flag in ("duration", "interval"):
+        value = getattr(args, flag)
+        if value is not None and value <= 0:
+            raise UserError(f"--{flag} {value} must be positive")
+    if args.rows < 1:
+        raise UserError(f"--rows {args.rows} must be at least 1")
+    options = client_options(args)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    console = Console()
+    views: dict[str, StreamView] = {}
+    started = time.monotonic()
+    session = open_client_session(options)
+    live = Live(console=console, auto_refresh=False) if console.is_terminal else None
+    next_draw = started
+    try:
+        sub = TrackSubscriber(session, key_expr=keys, buffer=10_000)
+        if live is not None:
+            live.start()
+        else:
+            print(f"watching {keys}; Ctrl-C to stop", flush=True)
+        while not stop.is_set():
+            now = time.monotonic()
+            if args.duration is not None and now - started >= args.duration:
+                break
+            msg = sub.recv(timeout=0.1)
+            while msg is not None:
+                name = f"{msg.vehicle}/{msg.sensor}"
+                if name not in views:
+                    views[name] = StreamView(msg)
+                views[name].add(msg, time.monotonic())
+                msg = sub.try_recv()
+            now = time.monotonic()
+            if now < next_draw:
+                continue
+            if live is not None:
+                live.update(render(views, keys, args.detail, args.rows, now), refresh=True)
+                next_draw = now + 0.25
+            else:
+                for name, v in sorted(views.items()):
+                    c, t, k = v.states()
+                    print(
+                        f"{name} seq {v.last.seq} frames {v.frames} {v.rate(now):.1f} Hz "
+                        f"p50 {_q(v.latency, 0.5)} ms tracks {c} confirmed, {t} tentative, "
+                        f"{k} coasting",
+                        flush=True,
+                    )
+                next_draw = now + args.interval
+        sub.close()
+    finally:
+        if live is not None:
+            live.stop()
+        session.close()  # type: ignore[no-untyped-call]
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    total = sum(v.frames for v in views.values())
+    print(
+        f"watch: {total} frames from {len(views)} stream(s) in {time.monotonic() - started:.1f} s"
+    )
+    sys.stdout.flush()
+    return 0

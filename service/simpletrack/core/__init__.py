@@ -1,0 +1,32 @@
+"""The pure SimpleTrack core: numpy arrays in, numpy arrays out; no I/O, clocks or environment."""
+
+from simpletrack.core.boxes import Boxes
+from simpletrack.core.config import (
+    ClassConfig,
+    Matcher,
+    Metric,
+    MotionModel,
+    OutputPolicy,
+    TieOrder,
+    TrackerConfig,
+    VerticalOverlap,
+    preset,
+)
+from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.tracker import Tracker
+
+__all__ = [
+    "Boxes",
+    "ClassConfig",
+    "Frame",
+    "Matcher",
+    "Metric",
+    "MotionModel",
+    "OutputPolicy",
+    "TieOrder",
+    "Tracker",
+    "TrackerConfig",
+    "Tracks",
+    "VerticalOverlap",
+    "preset",
+]

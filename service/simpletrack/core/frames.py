@@ -1,0 +1,75 @@
+"""What goes into and comes out of Tracker.step."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.core.boxes import F64, Boxes, transform_boxes
+
+I64 = npt.NDArray[np.int64]
+I32 = npt.NDArray[np.int32]
+I8 = npt.NDArray[np.int8]
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One sensor frame of detections. ``stamp`` in seconds (any monotonic origin);
+    ``pose`` an optional 4x4 sensor->world transform; ``key_frame`` False marks the
+    paper's 10 Hz non-key frames."""
+
+    boxes: Boxes
+    stamp: float
+    pose: F64 | None = None
+    key_frame: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Tracks:
+    """The tracks a frame reports, in the tracking frame (world when a pose is given).
+
+    ``boxes.score`` is the output score; ``velocity`` (K, 3) the filter's; ``state`` holds
+    TrackState codes; ``update`` UpdateKind codes for this frame."""
+
+    ids: I64
+    boxes: Boxes
+    velocity: F64
+    state: I8
+    update: I8
+    hits: I32
+    age: I32
+    time_since_update: I32
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    @classmethod
+    def empty(cls) -> Tracks:
+        return cls(
+            ids=np.zeros(0, dtype=np.int64),
+            boxes=Boxes.empty(),
+            velocity=np.zeros((0, 3)),
+            state=np.zeros(0, dtype=np.int8),
+            update=np.zeros(0, dtype=np.int8),
+            hits=np.zeros(0, dtype=np.int32),
+            age=np.zeros(0, dtype=np.int32),
+            time_since_update=np.zeros(0, dtype=np.int32),
+        )
+
+    def in_sensor_frame(self, pose: F64) -> Tracks:
+        """These tracks expressed in the sensor frame whose sensor->world pose is given."""
+        inv = np.asarray(np.linalg.inv(pose), dtype=np.float64)
+        boxes = transform_boxes(self.boxes, inv)
+        vel = self.velocity @ inv[:3, :3].T
+        return Tracks(
+            ids=self.ids,
+            boxes=boxes,
+            velocity=vel,
+            state=self.state,
+            update=self.update,
+            hits=self.hits,
+            age=self.age,
+            time_since_update=self.time_since_update,
+        )

@@ -1,0 +1,141 @@
+"""Motion models, vectorised over all tracks of a tracker.
+
+The Kalman filter is AB3DMOT's 10-d constant-velocity filter over
+``[x, y, z, yaw, l, w, h, vx, vy, vz]`` measuring the first 7. It holds no per-track state:
+callers pass the stacked means (T, 10) and covariances (T, 10, 10). The arithmetic follows
+``filterpy.kalman.KalmanFilter`` (predict; update with the Joseph form) so results agree with it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.core.boxes import F64, YAW
+from simpletrack.core.config import KalmanConfig
+
+DIM_X = 10
+DIM_Z = 7
+_VEL = slice(7, 10)
+_POS = slice(0, 3)
+_H = np.eye(DIM_Z, DIM_X)
+
+
+def _wrap_once(a: F64) -> F64:
+    """The reference's single-step wrap into [-pi, pi): valid for |a| < 3 pi."""
+    a = np.where(a >= np.pi, a - 2 * np.pi, a)
+    return np.where(a < -np.pi, a + 2 * np.pi, a)
+
+
+def transition(dt: F64) -> F64:
+    """F(dt) for each track: (T, 10, 10)."""
+    f = np.broadcast_to(np.eye(DIM_X), (dt.shape[0], DIM_X, DIM_X)).copy()
+    f[:, [0, 1, 2], [7, 8, 9]] = dt[:, None]
+    return f
+
+
+class KalmanFilter:
+    """Constant-velocity Kalman filter with AB3DMOT's noise defaults."""
+
+    def __init__(self, config: KalmanConfig) -> None:
+        self.config = config
+        self.q = np.eye(DIM_X) * config.q
+        self.r = np.eye(DIM_Z) * config.r
+        p0 = np.full(DIM_X, config.p0_measured)
+        p0[_VEL] = config.p0_velocity
+        self.p0 = np.diag(p0)
+
+    def initiate(self, measurement: F64) -> tuple[F64, F64]:
+        n = measurement.shape[0]
+        x = np.zeros((n, DIM_X))
+        x[:, :DIM_Z] = measurement
+        return x, np.broadcast_to(self.p0, (n, DIM_X, DIM_X)).copy()
+
+    def predict(self, x: F64, p: F64, dt: F64) -> tuple[F64, F64]:
+        """One step of dt (per track) with one Q: x = F x, P = F P F^T + Q.
+
+        F = I + dt E (E copies velocities onto positions), so F P F^T is two row/column
+        additions rather than two dense (T, 10, 10) products."""
+        x_pred = x.copy()
+        x_pred[:, _POS] += x[:, _VEL] * dt[:, None]
+        fp = p.copy()
+        fp[:, _POS, :] += p[:, _VEL, :] * dt[:, None, None]
+        p_pred = fp.copy()
+        p_pred[:, :, _POS] += fp[:, :, _VEL] * dt[:, None, None]
+        p_pred += self.q
+        return x_pred, p_pred
+
+    def innovation(self, p: F64) -> F64:
+        """S = H P H^T + R, (T, 7, 7)."""
+        return np.asarray(p[:, :DIM_Z, :DIM_Z] + self.r, dtype=np.float64)
+
+    def update(self, x: F64, p: F64, z: F64) -> tuple[F64, F64]:
+        """Correct predicted states (T, 10) with measurements (T, 7), after the reference's
+        orientation correction, and wrap the yaw afterwards."""
+        x = x.copy()
+        z = z.copy()
+        x[:, YAW] = align_yaw(x[:, YAW], z[:, YAW])
+        z[:, YAW] = _wrap_once(z[:, YAW])
+        y = z - x[:, :DIM_Z]
+        pht = p[:, :, :DIM_Z]  # P H^T
+        s = pht[:, :DIM_Z, :] + self.r
+        k = pht @ np.linalg.inv(s)
+        x = x + np.einsum("tij,tj->ti", k, y)
+        i_kh = np.eye(DIM_X) - k @ _H
+        p = i_kh @ p @ i_kh.transpose(0, 2, 1) + k @ self.r @ k.transpose(0, 2, 1)
+        x[:, YAW] = _wrap_once(x[:, YAW])
+        return x, p
+
+
+def align_yaw(predicted: F64, measured: F64) -> F64:
+    """The reference's orientation correction of the predicted yaw before an update: turn it
+    by pi when the two headings are more than 90 degrees apart, then bring values that are
+    still >= 270 degrees apart together by 2 pi."""
+    pred = _wrap_once(predicted)
+    meas = _wrap_once(measured)
+    diff = np.abs(meas - pred)
+    flip = (diff > np.pi / 2) & (diff < 3 * np.pi / 2)
+    turned = pred + np.pi
+    turned = np.where(turned > np.pi, turned - 2 * np.pi, turned)
+    turned = np.where(turned < -np.pi, turned + 2 * np.pi, turned)
+    out = np.where(flip, turned, pred)
+    # The reference re-reads the (possibly turned) state here: the check is "still" far apart.
+    far = np.abs(meas - out) >= 3 * np.pi / 2
+    return np.asarray(
+        np.where(far, out + np.where(meas > 0, 2 * np.pi, -2 * np.pi), out), dtype=np.float64
+    )
+
+
+def predicted_boxes(x_pred: F64) -> F64:
+    """The (T, 7) boxes of predicted states, yaw wrapped as the reference reports them."""
+    boxes = x_pred[:, :DIM_Z].copy()
+    boxes[:, YAW] = _wrap_once(boxes[:, YAW])
+    return boxes
+
+
+class ConstantVelocity:
+    """CenterPoint-style motion: the detector's velocity carries the box; no filtering."""
+
+    def initiate(self, measurement: F64, velocity: F64 | None) -> F64:
+        x = np.zeros((measurement.shape[0], DIM_X))
+        x[:, :DIM_Z] = measurement
+        if velocity is not None:
+            x[:, 7:9] = velocity
+        return x
+
+    def predict(self, x: F64, dt: F64) -> F64:
+        out = x.copy()
+        out[:, :3] += x[:, 7:10] * dt[:, None]
+        return out
+
+    def update(self, measurement: F64, velocity: F64 | None, previous: F64) -> F64:
+        x = previous.copy()
+        x[:, :DIM_Z] = measurement
+        x[:, YAW] = _wrap_once(x[:, YAW])
+        if velocity is not None:
+            x[:, 7:9] = velocity
+        return x
+
+
+def as_f64(a: npt.ArrayLike) -> F64:
+    return np.asarray(a, dtype=np.float64)

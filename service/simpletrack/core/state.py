@@ -1,0 +1,96 @@
+"""A tracker's tracks as parallel arrays (one row per live track), and their byte form."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.core.motion import DIM_X
+
+
+@dataclass(frozen=True, slots=True)
+class TrackTable:
+    ids: npt.NDArray[np.int64]
+    cls: npt.NDArray[np.int32]
+    x: npt.NDArray[np.float64]  # (T, 10) state at the last filter update
+    p: npt.NDArray[np.float64]  # (T, 10, 10) covariance at the last filter update
+    t_update: npt.NDArray[np.float64]  # stamp of the last filter update
+    score: npt.NDArray[np.float64]  # latest score (decays while coasting)
+    hits: npt.NDArray[np.int32]
+    age: npt.NDArray[np.int32]
+    time_since_update: npt.NDArray[np.int32]
+    state: npt.NDArray[np.int8]  # TrackState
+    update: npt.NDArray[np.int8]  # UpdateKind of the latest frame
+    out_box: npt.NDArray[np.float64]  # (T, 7) box reported for the latest frame
+
+    @classmethod
+    def empty(cls) -> TrackTable:
+        return cls(
+            ids=np.zeros(0, dtype=np.int64),
+            cls=np.zeros(0, dtype=np.int32),
+            x=np.zeros((0, DIM_X)),
+            p=np.zeros((0, DIM_X, DIM_X)),
+            t_update=np.zeros(0),
+            score=np.zeros(0),
+            hits=np.zeros(0, dtype=np.int32),
+            age=np.zeros(0, dtype=np.int32),
+            time_since_update=np.zeros(0, dtype=np.int32),
+            state=np.zeros(0, dtype=np.int8),
+            update=np.zeros(0, dtype=np.int8),
+            out_box=np.zeros((0, 7)),
+        )
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def take(self, index: npt.ArrayLike) -> TrackTable:
+        idx = np.asarray(index)
+        return TrackTable(*(getattr(self, name)[idx] for name in _FIELDS))
+
+    def concat(self, other: TrackTable) -> TrackTable:
+        return TrackTable(
+            *(np.concatenate([getattr(self, name), getattr(other, name)]) for name in _FIELDS)
+        )
+
+    def to_msgpack_obj(self) -> dict[str, Any]:
+        return {name: _pack_array(getattr(self, name)) for name in _FIELDS}
+
+    @classmethod
+    def from_msgpack_obj(cls, obj: dict[str, Any]) -> TrackTable:
+        missing = [name for name in _FIELDS if name not in obj]
+        if missing:
+            raise ValueError(f"tracker state lacks {', '.join(missing)}")
+        return cls(*(_unpack_array(obj[name]) for name in _FIELDS))
+
+
+_FIELDS = tuple(f.name for f in fields(TrackTable))
+
+
+def _pack_array(a: npt.NDArray[Any]) -> dict[str, Any]:
+    a = np.ascontiguousarray(a)
+    return {
+        "dtype": a.dtype.newbyteorder("<").str,
+        "shape": list(a.shape),
+        "data": a.astype(a.dtype.newbyteorder("<")).tobytes(),
+    }
+
+
+def _unpack_array(obj: dict[str, Any]) -> npt.NDArray[Any]:
+    dtype = np.dtype(obj["dtype"])
+    arr = np.frombuffer(obj["data"], dtype=dtype).reshape(obj["shape"])
+    return arr.astype(dtype.newbyteorder("="))
+
+
+def pack(obj: dict[str, Any]) -> bytes:
+    return bytes(msgpack.packb(obj, use_bin_type=True))
+
+
+def unpack(blob: bytes) -> dict[str, Any]:
+    out = msgpack.unpackb(blob, raw=False)
+    if not isinstance(out, dict):
+        raise ValueError("tracker state must be a msgpack map")
+    return out

@@ -1,0 +1,336 @@
+"""SimpleTrack: one tracker, many tracks, one ``step`` per frame.
+
+A frame's way: drop degenerate boxes → world frame → class-aware NMS → predict every
+track → stage-1 association per class → stage-2 life extension → life cycle → births →
+deaths → output policy. Pure: arrays in, arrays out; the only state is ``TrackTable``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.core import geometry
+from simpletrack.core.association import Assignment, assign
+from simpletrack.core.boxes import F64, YAW, Boxes, transform_boxes
+from simpletrack.core.config import Metric, MotionModel, OutputPolicy, TrackerConfig
+from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.lifecycle import TrackState, UpdateKind
+from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
+from simpletrack.core.nms import drop_degenerate, nms
+from simpletrack.core.state import TrackTable, pack, unpack
+
+STATE_FORMAT = 1
+_METRICS = tuple(Metric)
+I64 = npt.NDArray[np.int64]
+
+
+class Tracker:
+    """The SimpleTrack tracker of one sensor stream. IDs are unique per instance, never reused."""
+
+    def __init__(self, config: TrackerConfig) -> None:
+        self.config = config
+        self._kf = KalmanFilter(config.kalman)
+        self._cv = ConstantVelocity()
+        codes = range(len(config.classes))
+        self._nms_iou = np.array([config.for_code(c).nms_iou for c in codes])
+        self._score_high = np.array([config.for_code(c).score_high for c in codes])
+        self._min_hits = np.array([config.for_code(c).min_hits for c in codes], dtype=np.int64)
+        self._max_age = np.array([config.for_code(c).max_age for c in codes], dtype=np.int64)
+        self._score_low = np.array([config.for_code(c).score_low for c in codes])
+        self._two_stage = np.array([config.for_code(c).two_stage for c in codes], dtype=bool)
+        self._stage2_max = np.array([config.for_code(c).stage2_max_distance for c in codes])
+        self._metric_code = np.array(
+            [_METRICS.index(config.for_code(c).metric) for c in codes], dtype=np.int64
+        )
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track; IDs restart from 0 (a new stream)."""
+        self.tracks = TrackTable.empty()
+        self.frame_count = 0
+        self.next_id = 0
+        self.last_stamp: float | None = None
+
+    # ------------------------------------------------------------------ the frame
+    def step(self, frame: Frame) -> Tracks:
+        if self.last_stamp is not None and frame.stamp < self.last_stamp:
+            raise ValueError(f"stamp {frame.stamp} is before the last one {self.last_stamp}")
+        if len(frame.boxes) and int(frame.boxes.cls.max(initial=0)) >= len(self.config.classes):
+            raise ValueError(f"class code {int(frame.boxes.cls.max())} has no config")
+        self.frame_count += 1
+        dets = self._preprocess(frame)
+        key = frame.key_frame
+        tr = self.tracks
+
+        x_pred, p_pred = self._predict(tr, frame.stamp)
+        pred_box = predicted_boxes(x_pred)
+        age, tsu = tr.age, tr.time_since_update
+        if key:
+            age, tsu = age + 1, tsu + 1
+        score = tr.score * self.config.coast_score_decay
+
+        # Stage 1: detections over the (per-class or non-key) high threshold.
+        high = (
+            self._score_high[dets.cls]
+            if key
+            else np.full(len(dets), self.config.non_key.score_high)
+        )
+        is_high = dets.score >= high
+        # Stage 2: detections over the low threshold (classes with two-stage association).
+        if key:
+            is_low = (dets.score > self._score_low[dets.cls]) & self._two_stage[dets.cls]
+        else:
+            is_low = dets.score > self.config.non_key.score_low
+        # One distance table for both stages: the candidates of either against every track.
+        pool = np.flatnonzero(is_high | is_low)
+        table = self._distance_table(dets.params[pool], dets.cls[pool], tr.cls, pred_box, p_pred)
+        row = np.full(len(dets), -1, dtype=np.int64)
+        row[pool] = np.arange(pool.size)
+
+        cand = np.flatnonzero(is_high)
+        matched_det, matched_trk, unmatched_det = self._stage1(
+            dets.cls, cand, row[cand], tr.cls, table
+        )
+        update = np.full(len(tr), UpdateKind.COASTED, dtype=np.int8)
+        update[matched_trk] = UpdateKind.MATCHED
+        extended = self._stage2(row[is_low], tr.cls, table, update, key)
+        update[extended] = UpdateKind.EXTENDED
+
+        # Filter corrections: matched with their detection, extended with their own prediction.
+        corrected = np.concatenate([matched_trk, extended])
+        meas = np.concatenate([dets.params[matched_det], pred_box[extended]])
+        vel = None
+        if dets.velocity is not None:
+            vel = np.concatenate([dets.velocity[matched_det], x_pred[extended, 7:9]])
+        x, p, t_update = tr.x.copy(), tr.p.copy(), tr.t_update.copy()
+        if corrected.size:
+            if self.config.motion is MotionModel.KALMAN:
+                x[corrected], p[corrected] = self._kf.update(
+                    x_pred[corrected], p_pred[corrected], meas
+                )
+            else:
+                x[corrected] = self._cv.update(meas, vel, x_pred[corrected])
+            t_update[corrected] = frame.stamp
+        score[matched_trk] = dets.score[matched_det]
+
+        hits = tr.hits.copy()
+        state = tr.state.copy()
+        if key:
+            touched = update != UpdateKind.COASTED
+            hits[touched] += 1
+            tsu = np.where(touched, 0, tsu).astype(np.int32)
+            state = self._transition(tr.cls, state, hits, tsu)
+
+        out_box = pred_box.copy()
+        out_box[corrected] = x[corrected, :7]
+        tr = TrackTable(
+            ids=tr.ids,
+            cls=tr.cls,
+            x=x,
+            p=p,
+            t_update=t_update,
+            score=score,
+            hits=hits.astype(np.int32),
+            age=age.astype(np.int32),
+            time_since_update=tsu.astype(np.int32),
+            state=state,
+            update=update,
+            out_box=out_box,
+        )
+        if key:
+            tr = tr.concat(self._births(dets.take(unmatched_det), frame.stamp))
+            tr = tr.take(tr.state != TrackState.DEAD)
+        self.tracks = tr
+        self.last_stamp = frame.stamp
+        return self._output(tr)
+
+    # ------------------------------------------------------------------ stages
+    def _preprocess(self, frame: Frame) -> Boxes:
+        boxes = frame.boxes.take(drop_degenerate(frame.boxes))
+        if frame.pose is not None:
+            boxes = transform_boxes(boxes, frame.pose)
+        return boxes.take(
+            nms(
+                boxes,
+                self._nms_iou,
+                vertical=self.config.vertical_overlap,
+                tie_order=self.config.tie_order,
+            )
+        )
+
+    def _predict(self, tr: TrackTable, stamp: float) -> tuple[F64, F64]:
+        dt = stamp - tr.t_update
+        if self.config.motion is MotionModel.KALMAN:
+            return self._kf.predict(tr.x, tr.p, dt)
+        return self._cv.predict(tr.x, dt), tr.p
+
+    def _distance_table(
+        self,
+        d_params: F64,
+        d_cls: npt.NDArray[np.int32],
+        t_cls: npt.NDArray[np.int32],
+        pred: F64,
+        p_pred: F64,
+    ) -> F64:
+        """(detections, tracks) distances: every same-class pair computed, all classes in one
+        call per metric; pairs of different classes are +inf (they never match)."""
+        table = np.full((d_cls.size, t_cls.size), np.inf)
+        ia, ib = np.nonzero(d_cls[:, None] == t_cls[None, :])
+        pair_metric = self._metric_code[d_cls[ia]]
+        for m in np.unique(pair_metric).tolist():
+            metric = _METRICS[m]
+            sel = np.flatnonzero(pair_metric == m)
+            innovation = self._kf.innovation(p_pred) if metric is Metric.MAHALANOBIS else None
+            table[ia[sel], ib[sel]] = geometry.distance_pairs(
+                metric,
+                d_params,
+                pred,
+                ia[sel],
+                ib[sel],
+                vertical=self.config.vertical_overlap,
+                innovation=innovation,
+            )
+        return table
+
+    def _stage1(
+        self,
+        det_cls: npt.NDArray[np.int32],
+        cand: I64,
+        cand_rows: I64,
+        trk_cls: npt.NDArray[np.int32],
+        table: F64,
+    ) -> tuple[I64, I64, I64]:
+        """Class by class (a detection never matches a track of another class)."""
+        d_cls = det_cls[cand]
+        md: list[I64] = []
+        mt: list[I64] = []
+        um: list[I64] = []
+        for code in np.unique(np.concatenate([d_cls, trk_cls])).tolist():
+            c = self.config.for_code(code)
+            in_class = d_cls == code
+            t_idx = np.flatnonzero(trk_cls == code)
+            block = table[np.ix_(cand_rows[in_class], t_idx)]
+            a: Assignment = assign(block, c.max_distance, c.matcher)
+            d_idx = cand[in_class]
+            md.append(d_idx[a.det])
+            mt.append(t_idx[a.track])
+            um.append(d_idx[a.unmatched_dets])
+        empty = np.zeros(0, dtype=np.int64)
+        return (
+            np.concatenate(md) if md else empty,
+            np.concatenate(mt) if mt else empty,
+            np.concatenate(um) if um else empty,
+        )
+
+    def _stage2(
+        self,
+        low_rows: I64,
+        trk_cls: npt.NDArray[np.int32],
+        table: F64,
+        update: npt.NDArray[np.int8],
+        key: bool,
+    ) -> I64:
+        """Unmatched tracks that some low-score detection agrees with (any detection over
+        ``score_low``, used in stage 1 or not, as the reference does)."""
+        eligible = update == UpdateKind.COASTED
+        if key:
+            eligible &= self._two_stage[trk_cls]
+        t_idx = np.flatnonzero(eligible)
+        if t_idx.size == 0 or low_rows.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        near = table[np.ix_(low_rows, t_idx)] <= self._stage2_max[trk_cls[t_idx]]
+        return t_idx[near.any(axis=0)].astype(np.int64)
+
+    def _transition(
+        self,
+        cls: npt.NDArray[np.int32],
+        state: npt.NDArray[np.int8],
+        hits: npt.NDArray[np.int32],
+        tsu: npt.NDArray[np.int32],
+    ) -> npt.NDArray[np.int8]:
+        min_hits, max_age = self._min_hits[cls], self._max_age[cls]
+        tentative = state == TrackState.TENTATIVE
+        promote = tentative & ((hits >= min_hits) | (self.frame_count <= min_hits))
+        dies = (tsu >= max_age) & ~promote
+        out = state.copy()
+        out[promote] = TrackState.CONFIRMED
+        out[dies] = TrackState.DEAD
+        return out
+
+    def _births(self, dets: Boxes, stamp: float) -> TrackTable:
+        n = len(dets)
+        ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
+        self.next_id += n
+        min_hits = self._min_hits[dets.cls]
+        confirmed = (min_hits == 0) | (self.frame_count <= min_hits)
+        if self.config.motion is MotionModel.KALMAN:
+            x, p = self._kf.initiate(dets.params)
+        else:
+            x = self._cv.initiate(dets.params, dets.velocity)
+            p = np.zeros((n, *self._kf.p0.shape))
+        return TrackTable(
+            ids=ids,
+            cls=dets.cls.astype(np.int32),
+            x=x,
+            p=p,
+            t_update=np.full(n, stamp),
+            score=dets.score.copy(),
+            hits=np.ones(n, dtype=np.int32),
+            age=np.zeros(n, dtype=np.int32),
+            time_since_update=np.zeros(n, dtype=np.int32),
+            state=np.where(confirmed, TrackState.CONFIRMED, TrackState.TENTATIVE).astype(np.int8),
+            update=np.full(n, UpdateKind.MATCHED, dtype=np.int8),
+            out_box=dets.params.copy(),
+        )
+
+    def _output(self, tr: TrackTable) -> Tracks:
+        policy = self.config.output
+        matched = tr.update == UpdateKind.MATCHED
+        confirmed = tr.state == TrackState.CONFIRMED
+        if policy is OutputPolicy.NUSCENES:
+            keep = np.ones(len(tr), dtype=bool)
+        elif policy is OutputPolicy.REFERENCE:
+            keep = (tr.state == TrackState.TENTATIVE) | (confirmed & matched)
+        else:
+            keep = confirmed & matched
+        t = tr.take(keep)
+        return Tracks(
+            ids=t.ids,
+            boxes=Boxes(params=t.out_box, score=t.score, cls=t.cls),
+            velocity=t.x[:, 7:10].copy(),
+            state=t.state,
+            update=t.update,
+            hits=t.hits,
+            age=t.age,
+            time_since_update=t.time_since_update,
+        )
+
+    # ------------------------------------------------------------------ persistence
+    def to_bytes(self) -> bytes:
+        """Everything needed to continue exactly where this tracker is."""
+        return pack(
+            {
+                "format": STATE_FORMAT,
+                "config": self.config.model_dump_json(),
+                "frame_count": self.frame_count,
+                "next_id": self.next_id,
+                "last_stamp": self.last_stamp,
+                "tracks": self.tracks.to_msgpack_obj(),
+            }
+        )
+
+    @classmethod
+    def from_bytes(cls, blob: bytes) -> Tracker:
+        obj = unpack(blob)
+        if obj.get("format") != STATE_FORMAT:
+            raise ValueError(f"unsupported tracker state format {obj.get('format')!r}")
+        tracker = cls(TrackerConfig.model_validate_json(obj["config"]))
+        tracker.frame_count = int(obj["frame_count"])
+        tracker.next_id = int(obj["next_id"])
+        tracker.last_stamp = None if obj["last_stamp"] is None else float(obj["last_stamp"])
+        tracker.tracks = TrackTable.from_msgpack_obj(obj["tracks"])
+        return tracker
+
+
+__all__ = ["YAW", "Tracker"]

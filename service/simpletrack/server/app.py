@@ -1,0 +1,280 @@
+"""The running service: wires Zenoh, the intake, the workers, snapshots and metrics together,
+and owns the start-up and shutdown order.
+
+Start: metrics HTTP → Zenoh session → restore snapshots → workers → subscriber, queryables,
+liveliness token → ready. Stop (SIGTERM/SIGINT): not ready → undeclare the subscriber (no new
+frames) → workers finish their queues (bounded by ``shutdown_timeout_s``) and snapshot every
+sensor → snapshot writer flushes → session closed → HTTP closed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import threading
+import time
+from types import FrameType
+from typing import Any
+
+import zenoh
+
+from simpletrack.core.tracker import Tracker
+from simpletrack.server.intake import Inbound, Intake, WorkQueue, depth, worker_index
+from simpletrack.server.logs import get_logger
+from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
+from simpletrack.server.pool import MSGPACK, NAME_RE, Context, SensorBudget, Worker, peek_header
+from simpletrack.server.settings import ServiceSettings, config_digest
+from simpletrack.server.snapshots import SnapshotWriter, read_all
+from simpletrack.session import open_session
+from simpletrack.wire.codec import DecodeLimits, encode
+from simpletrack.wire.keys import Keys
+from simpletrack.wire.models import FrameError, ServiceStatus
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+log = get_logger("service")
+
+
+class Service:
+    def __init__(self, settings: ServiceSettings) -> None:
+        self.settings = settings
+        self.keys = Keys(settings.prefix)
+        self.config = settings.tracker_config()
+        self.class_codes = {name: code for code, name in enumerate(self.config.class_names)}
+        for name in settings.ignore_classes:
+            if name in self.class_codes:
+                raise ValueError(f"ignore_classes: {name!r} is a tracked class of this preset")
+            self.class_codes[name] = -1
+        self.metrics = Metrics(settings.metrics_vehicle_label, settings.metrics_max_vehicles)
+        self.stop_requested = threading.Event()
+        self.started_ns = time.time_ns()
+        self._ready = False
+        self._http: HttpEndpoint | None = None
+        self._session: zenoh.Session | None = None
+        self._writer: SnapshotWriter | None = None
+        self._workers: list[Worker] = []
+        self._queues: list[WorkQueue] = []
+        self._declared: list[Any] = []  # subscriber, queryables, token: undeclared in order
+        self.http_port: int | None = None
+
+    # ------------------------------------------------------------------ start
+    def start(self) -> None:
+        s = self.settings
+        if s.metrics_port:
+            self._http = HttpEndpoint(self.metrics, s.metrics_host, s.metrics_port, self.ready)
+            self._http.start()
+            self.http_port = self._http.port
+        self._session = session = open_session(s.zenoh)
+        if s.state_dir is not None:
+            s.state_dir.mkdir(parents=True, exist_ok=True)
+            self._writer = SnapshotWriter()
+        digest = config_digest(self.config)
+        ctx = Context(
+            settings=s,
+            session=session,
+            keys=self.keys,
+            metrics=self.metrics,
+            tracker_config_digest=digest,
+            new_tracker=lambda: Tracker(self.config),
+            class_codes=self.class_codes,
+            classes=self.config.class_names,
+            budget=SensorBudget(s.max_sensors),
+            writer=self._writer,
+            limits=DecodeLimits(max_bytes=s.max_frame_bytes, max_boxes=s.max_boxes),
+        )
+        self._queues = [WorkQueue(s.queue_size) for _ in range(s.workers)]
+        self._workers = [Worker(i, q, ctx) for i, q in enumerate(self._queues)]
+        if s.state_dir is not None:
+            for snap in read_all(s.state_dir):
+                key = self.keys.detections(snap.vehicle, snap.sensor)
+                self._workers[worker_index(key, s.workers)].adopt(snap)
+        self._metrics_functions()
+        for w in self._workers:
+            w.start()
+
+        intake = Intake(self._queues, s.backpressure, self._on_received, self._on_dropped)
+        self._declared.append(session.declare_subscriber(self.keys.all_detections, intake))
+        self._declared.append(
+            session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
+        )
+        self._declared.append(
+            session.declare_queryable(self.keys.snapshot(s.instance), self._on_snapshot_query)
+        )
+        self._declared.append(session.liveliness().declare_token(self.keys.liveliness(s.instance)))
+        self._ready = True
+        log.info(
+            "service_started",
+            instance=s.instance,
+            version=package_version("simpletrack-service"),
+            prefix=s.prefix,
+            mode=s.zenoh.mode.value,
+            listen=",".join(s.zenoh.listen),
+            connect=",".join(s.zenoh.connect),
+            metrics_port=self.http_port,
+            preset=s.preset,
+            workers=s.workers,
+            backpressure=s.backpressure.value,
+            state_dir=str(s.state_dir) if s.state_dir else None,
+            restored=sum(len(w.sensors) for w in self._workers),
+        )
+
+    def _metrics_functions(self) -> None:
+        m = self.metrics
+        m.queue_depth.set_function(lambda: depth(self._queues))
+        if self.settings.state_dir is None:
+            m.snapshot_age.set(math.nan)  # no persistence configured
+        else:
+            workers = self._workers
+            m.snapshot_age.set_function(
+                lambda: time.monotonic() - min(w.snapshot_done_at for w in workers)
+            )
+
+    def ready(self) -> bool:
+        return self._ready and self._session is not None and not self._session.is_closed()
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_received(self, key: str) -> None:
+        vehicle, _ = self.keys.sensor_of(key) or ("", "")
+        self.metrics.count_received(vehicle)
+
+    def _on_dropped(self, item: Inbound, reason: ErrorReason) -> None:
+        """Runs in the Zenoh callback: count now; queue-full notices are published by the
+        worker; a frame refused at shutdown is reported here (no worker will see it)."""
+        vehicle, sensor = self.keys.sensor_of(item.key) or ("", "")
+        self.metrics.count_error(reason, vehicle)
+        if reason is ErrorReason.DROPPED_SHUTDOWN and self._session is not None:
+            if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
+                seq, stamp_ns = peek_header(item.payload)
+                err = FrameError(
+                    schema_version=SCHEMA_VERSION,
+                    vehicle=vehicle,
+                    sensor=sensor,
+                    seq=seq,
+                    stamp_ns=stamp_ns,
+                    reason=reason,
+                    detail="service shutting down",
+                    instance=self.settings.instance,
+                    received_ns=item.received_ns,
+                )
+                with contextlib.suppress(zenoh.ZError):
+                    self._session.put(
+                        self.keys.errors(vehicle, sensor),
+                        encode(err),
+                        encoding=MSGPACK,
+                        congestion_control=zenoh.CongestionControl.DROP,
+                    )
+            log.warning("frame_dropped", vehicle=vehicle, sensor=sensor, reason=reason.value)
+
+    def status(self) -> ServiceStatus:
+        return ServiceStatus(
+            schema_version=SCHEMA_VERSION,
+            instance=self.settings.instance,
+            version=package_version("simpletrack-service"),
+            preset=self.settings.preset,
+            classes=list(self.config.class_names),
+            config_digest=config_digest(self.config),
+            started_ns=self.started_ns,
+            ready=self.ready(),
+            queue_depth=depth(self._queues),
+            sensors=[st for w in self._workers for st in w.status()],
+        )
+
+    def _on_status_query(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(
+                self.keys.status(self.settings.instance), encode(self.status()), encoding=MSGPACK
+            )
+        except zenoh.ZError as e:
+            log.warning("query_reply_failed", key=str(query.key_expr), error=str(e))
+        finally:
+            query.drop()  # type: ignore[no-untyped-call]
+
+    def _on_snapshot_query(self, query: zenoh.Query) -> None:
+        """Each worker serialises its own sensors on its own thread; the last to answer
+        finalises the query."""
+        asked = zenoh.KeyExpr(str(query.key_expr))
+        parts = str(query.key_expr).split("/")
+        vehicle, sensor = parts[-2], parts[-1]
+        if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
+            index = worker_index(self.keys.detections(vehicle, sensor), len(self._workers))
+            targets = [self._workers[index]]
+        else:
+            targets = list(self._workers)
+        pending = [len(targets)]
+        lock = threading.Lock()
+        instance = self.settings.instance
+
+        def answer(worker: Worker) -> None:
+            try:
+                for v, s in worker.sensor_names():
+                    key = self.keys.snapshot(instance, v, s)
+                    if zenoh.KeyExpr(key).intersects(asked):
+                        snap = worker.snapshot_of(v, s)
+                        if snap is not None:
+                            query.reply(key, encode(snap), encoding=MSGPACK)
+            except zenoh.ZError as e:
+                log.warning("query_reply_failed", key=str(asked), error=str(e))
+            finally:
+                with lock:
+                    pending[0] -= 1
+                    last = pending[0] == 0
+                if last:
+                    query.drop()  # type: ignore[no-untyped-call]
+
+        for w in targets:
+            w.queue.put_control(lambda w=w: answer(w))  # type: ignore[misc]
+
+    # ------------------------------------------------------------------ stop
+    def request_stop(self, signum: int | None = None, _frame: FrameType | None = None) -> None:
+        self.stop_requested.set()
+
+    def shutdown(self) -> None:
+        s = self.settings
+        self._ready = False
+        log.info("service_stopping", instance=s.instance)
+        for entity in self._declared:
+            try:
+                entity.undeclare()
+            except (zenoh.ZError, RuntimeError) as e:
+                log.warning("undeclare_failed", error=str(e))
+        self._declared.clear()
+        deadline = time.monotonic() + s.shutdown_timeout_s
+        for w in self._workers:
+            w.drain_deadline = deadline
+            w.queue.close()
+        for w in self._workers:
+            if w.is_alive():
+                w.join(max(0.1, deadline - time.monotonic() + 5.0))
+            if w.is_alive():
+                log.error("worker_stuck", worker=w.index)
+        if self._writer is not None and not self._writer.close(timeout=s.shutdown_timeout_s):
+            log.error("snapshot_writer_stuck")
+        if self._session is not None:
+            self._session.close()  # type: ignore[no-untyped-call]
+        if self._http is not None:
+            self._http.close()
+        log.info(
+            "service_stopped",
+            instance=s.instance,
+            sensors=sum(len(w.sensors) for w in self._workers),
+        )
+
+
+def run(settings: ServiceSettings) -> int:
+    """Run until SIGTERM/SIGINT, then shut down cleanly. Returns the exit code."""
+    service = Service(settings)
+    previous = {
+        sig: signal.signal(sig, service.request_stop) for sig in (signal.SIGTERM, signal.SIGINT)
+    }
+    try:
+        service.start()
+        while not service.stop_requested.wait(0.5):
+            pass
+    finally:
+        service.shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
+__all__ = ["Service", "run"]

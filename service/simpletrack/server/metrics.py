@@ -1,0 +1,237 @@
+"""Prometheus metrics and the HTTP endpoint serving /metrics, /healthz and /readyz.
+
+Label cardinality is bounded: ``reason`` and ``stage`` are enums; ``vehicle`` only when
+enabled, and capped (later vehicles share ``_other``); never a track or sensor id.
+"""
+
+from __future__ import annotations
+
+import platform
+import threading
+from collections.abc import Callable
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
+
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Counter,
+    Gauge,
+    Histogram,
+    Info,
+    generate_latest,
+)
+
+from simpletrack.wire.reasons import DROP_REASONS, SCHEMA_VERSION, ErrorReason
+
+# Frame latencies live between ~0.1 ms (decode) and seconds (a stalled queue).
+LATENCY_BUCKETS = (
+    0.0001,
+    0.00025,
+    0.0005,
+    0.001,
+    0.0025,
+    0.005,
+    0.01,
+    0.025,
+    0.05,
+    0.1,
+    0.25,
+    0.5,
+    1.0,
+    2.5,
+    5.0,
+    10.0,
+)
+STAGES = ("queue", "decode", "track", "publish")
+OTHER_VEHICLES = "_other"
+
+
+def package_version(name: str) -> str:
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class Metrics:
+    """Every metric the service exports, on its own registry."""
+
+    def __init__(self, vehicle_label: bool = False, max_vehicles: int = 100) -> None:
+        self.registry = r = CollectorRegistry()
+        self._vehicle_label = vehicle_label
+        self._max_vehicles = max_vehicles
+        self._vehicles: set[str] = set()
+        v: tuple[str, ...] = ("vehicle",) if vehicle_label else ()
+        self.received = Counter(
+            "simpletrack_frames_received", "Detection frames taken off Zenoh", v, registry=r
+        )
+        self.tracked = Counter(
+            "simpletrack_frames_tracked", "Frames tracked and published", v, registry=r
+        )
+        self.rejected = Counter(
+            "simpletrack_frames_rejected",
+            "Frames refused, by reason (also published on the errors key)",
+            ("reason", *v),
+            registry=r,
+        )
+        self.dropped = Counter(
+            "simpletrack_frames_dropped",
+            "Frames shed under load, by reason (also published on the errors key)",
+            ("reason", *v),
+            registry=r,
+        )
+        self.stage = Histogram(
+            "simpletrack_stage_seconds",
+            "Time per frame in each stage: queue wait, decode, track, publish",
+            ("stage",),
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.end_to_end = Histogram(
+            "simpletrack_end_to_end_seconds",
+            "Sensor stamp_ns to tracks published (needs clocks in sync with the sensors)",
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.service_latency = Histogram(
+            "simpletrack_service_latency_seconds",
+            "Frame received by the service to tracks published",
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.queue_depth = Gauge(
+            "simpletrack_queue_depth", "Frames waiting in the worker queues", registry=r
+        )
+        self.active_sensors = Gauge(
+            "simpletrack_active_sensors", "Sensors with tracker state in memory", registry=r
+        )
+        self.active_tracks = Gauge(
+            "simpletrack_active_tracks", "Tracks reported on each sensor's latest frame", registry=r
+        )
+        self.snapshot_age = Gauge(
+            "simpletrack_snapshot_age_seconds",
+            "Seconds since the last complete snapshot (since start if none yet; NaN: no state_dir)",
+            registry=r,
+        )
+        self.snapshots = Counter(
+            "simpletrack_snapshots_written", "Sensor snapshot files written", registry=r
+        )
+        self.snapshot_failures = Counter(
+            "simpletrack_snapshot_failures",
+            "Sensor snapshots that could not be written",
+            registry=r,
+        )
+        self.restored = Counter(
+            "simpletrack_sensors_restored", "Sensors restored from the state directory", registry=r
+        )
+        self.evicted = Counter(
+            "simpletrack_sensors_evicted", "Sensors evicted after sensor_idle_s", registry=r
+        )
+        self.resets = Counter(
+            "simpletrack_tracker_resets",
+            "Per-sensor tracker resets: gap, time_backwards",
+            ("reason",),
+            registry=r,
+        )
+        self.boxes_ignored = Counter(
+            "simpletrack_boxes_ignored", "Boxes of classes listed in ignore_classes", registry=r
+        )
+        self.build = Info("simpletrack_build", "Versions of this service", registry=r)
+        self.build.info(
+            {
+                "version": package_version("simpletrack-service"),
+                "schema_version": str(SCHEMA_VERSION),
+                "zenoh": package_version("eclipse-zenoh"),
+                "python": platform.python_version(),
+            }
+        )
+        if not vehicle_label:  # make every reason visible at 0 from the first scrape
+            for reason in ErrorReason:
+                (self.dropped if reason in DROP_REASONS else self.rejected).labels(reason=reason)
+        for stage in STAGES:
+            self.stage.labels(stage=stage)
+        for why in ("gap", "time_backwards"):
+            self.resets.labels(reason=why)
+
+    def labels(self, vehicle: str) -> dict[str, str]:
+        """The vehicle label (if enabled), folding vehicles past the cap into ``_other``."""
+        if not self._vehicle_label:
+            return {}
+        if vehicle not in self._vehicles:
+            if len(self._vehicles) >= self._max_vehicles:
+                return {"vehicle": OTHER_VEHICLES}
+            self._vehicles.add(vehicle)
+        return {"vehicle": vehicle}
+
+    def count_received(self, vehicle: str) -> None:
+        labels = self.labels(vehicle)
+        (self.received.labels(**labels) if labels else self.received).inc()
+
+    def count_tracked(self, vehicle: str) -> None:
+        labels = self.labels(vehicle)
+        (self.tracked.labels(**labels) if labels else self.tracked).inc()
+
+    def count_error(self, reason: ErrorReason, vehicle: str) -> None:
+        metric = self.dropped if reason in DROP_REASONS else self.rejected
+        metric.labels(reason=reason.value, **self.labels(vehicle)).inc()
+
+
+class HttpEndpoint:
+    """/metrics (Prometheus text), /healthz (process alive), /readyz (``ready()`` is true)."""
+
+    def __init__(self, metrics: Metrics, host: str, port: int, ready: Callable[[], bool]) -> None:
+        registry = metrics.registry
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                path = self.path.split("?", 1)[0]
+                if path == "/metrics":
+                    self._send(200, generate_latest(registry), CONTENT_TYPE_LATEST)
+                elif path == "/healthz":
+                    self._send(200, b"ok\n")
+                elif path == "/readyz":
+                    ok = ready()
+                    self._send(200 if ok else 503, b"ready\n" if ok else b"not ready\n")
+                else:
+                    self._send(404, b"not found: try /metrics, /healthz, /readyz\n")
+
+            def _send(self, code: int, body: bytes, ctype: str = "text/plain") -> None:
+                self.send_response(code)
+                self.send_header("Content-Type", ctype)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, format: str, *args: Any) -> None:
+                pass  # scrapes every few seconds would drown the event log
+
+        self._server = ThreadingHTTPServer((host, port), Handler)
+        self._server.daemon_threads = True
+        self.port = int(self._server.server_address[1])
+        self._thread = threading.Thread(
+            target=self._server.serve_forever, name="metrics-http", daemon=True
+        )
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def close(self) -> None:
+        self._server.shutdown()
+        self._server.server_close()
+
+
+def reference_markdown() -> str:
+    """The metrics table of docs/SERVICE.md, from a fresh registry (so it cannot drift)."""
+    lines = ["| metric | type | labels | meaning |", "|---|---|---|---|"]
+    for family in Metrics().registry.collect():
+        labels = sorted({k for s in family.samples for k in s.labels if k != "le"})
+        name = {
+            "counter": f"{family.name}_total",
+            "info": f"{family.name}_info",
+        }.get(family.type, family.name)
+        lines.append(
+            f"| `{name}` | {family.type} | {', '.join(labels) or '-'} | {family.documentation} |"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,379 @@
+"""Service settings: defaults, then a TOML/YAML file (``--config``), then ``SIMPLETRACK_*``
+environment variables (nested with ``__``, e.g. ``SIMPLETRACK_ZENOH__MODE=client``), then flags.
+
+``python -m simpletrack.server.settings`` prints the reference table; ``--write docs/SERVICE.md`` refreshes
+the table in the docs (a test fails when it drifts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import re
+import socket
+import sys
+import tomllib
+from collections.abc import Iterator, Mapping
+from contextvars import ContextVar
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args, get_origin
+
+import yaml
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic.fields import FieldInfo
+from pydantic_settings import (
+    BaseSettings,
+    InitSettingsSource,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
+
+from simpletrack.core.config import PRESETS, ClassConfig, TrackerConfig, preset
+from simpletrack.session import ZenohOptions
+from simpletrack.wire.models import NAME_PATTERN
+
+ENV_PREFIX = "SIMPLETRACK_"
+DEFAULT_LISTEN = ("tcp/127.0.0.1:7447",)
+DOC_COMMAND = "python -m simpletrack.server.settings --write <this file>"
+
+
+class Backpressure(StrEnum):
+    DROP_OLDEST = "drop_oldest"  # never block Zenoh: a full worker queue drops its oldest frame
+    BLOCK = "block"  # lossless: a full queue stops intake; Zenoh pushes back to BLOCK publishers
+
+
+class Congestion(StrEnum):
+    BLOCK = "block"
+    DROP = "drop"
+
+
+class LogFormat(StrEnum):
+    JSON = "json"
+    KV = "kv"
+
+
+class LogLevel(StrEnum):
+    DEBUG = "debug"
+    INFO = "info"
+    WARNING = "warning"
+    ERROR = "error"
+
+
+def _default_instance() -> str:
+    host = re.sub(r"[^A-Za-z0-9_.\-]", "-", socket.gethostname())[:40].strip(".") or "host"
+    return f"simpletrack-{host}"
+
+
+PresetName = Literal["kitti", "wod", "nuscenes"]
+Seconds = Annotated[float, Field(gt=0.0)]
+_PREFIX = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}(/[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}){0,7}$"
+
+
+class ServiceSettings(BaseSettings):
+    """Everything ``simpletrack serve`` can be told."""
+
+    model_config = SettingsConfigDict(
+        env_prefix=ENV_PREFIX,
+        env_nested_delimiter="__",
+        extra="forbid",
+        validate_default=True,
+    )
+
+    prefix: Annotated[str, Field(pattern=_PREFIX)] = Field(
+        default="fleet", description="first key chunk(s): <prefix>/<vehicle>/<sensor>/detections"
+    )
+    instance: Annotated[str, Field(pattern=NAME_PATTERN)] = Field(
+        default_factory=_default_instance,
+        description="this instance's id in its liveliness/status keys (default from hostname)",
+    )
+    zenoh: ZenohOptions = Field(
+        default_factory=lambda: ZenohOptions(),
+        description="Zenoh session (flags --mode/--listen/--connect)",
+    )
+    preset: PresetName = Field(
+        default="kitti", description="tracker preset; its classes are the accepted class names"
+    )
+    class_overrides: Path | None = Field(
+        default=None, description="TOML/YAML file {class: {field: value}} over the preset's classes"
+    )
+    ignore_classes: list[str] = Field(
+        default_factory=list,
+        description="class names dropped from frames (counted) instead of rejected as unknown",
+    )
+    workers: Annotated[int, Field(ge=1, le=64)] = Field(
+        default=2, description="tracker threads; each sensor is pinned to one"
+    )
+    queue_size: Annotated[int, Field(ge=1, le=100_000)] = Field(
+        default=64, description="frames waiting per worker before backpressure applies"
+    )
+    backpressure: Backpressure = Field(
+        default=Backpressure.DROP_OLDEST, description="what a full queue does: drop_oldest or block"
+    )
+    congestion_control: Congestion = Field(
+        default=Congestion.BLOCK,
+        description="Zenoh congestion control of the tracks/errors publishers",
+    )
+    max_frame_bytes: Annotated[int, Field(ge=1024)] = Field(
+        default=8 << 20, description="larger payloads are rejected (too_large)"
+    )
+    max_boxes: Annotated[int, Field(ge=1)] = Field(
+        default=10_000, description="frames with more boxes are rejected (too_large)"
+    )
+    max_sensors: Annotated[int, Field(ge=1)] = Field(
+        default=1000, description="new sensors beyond this are rejected (too_many_sensors)"
+    )
+    sensor_idle_s: Seconds = Field(
+        default=600.0, description="a sensor silent this long is evicted (its ids stay reserved)"
+    )
+    reset_gap_s: Seconds = Field(
+        default=5.0, description="a stamp gap over this resets the sensor's tracker"
+    )
+    reset_backward_s: Seconds = Field(
+        default=5.0,
+        description="a stamp this far behind the last one resets the tracker (less: out_of_order)",
+    )
+    state_dir: Path | None = Field(
+        default=None, description="snapshot directory; restored on start (none: no persistence)"
+    )
+    snapshot_interval_s: Seconds = Field(
+        default=10.0, description="periodic snapshot interval: a crash loses at most this much"
+    )
+    shutdown_timeout_s: Seconds = Field(
+        default=20.0, description="on SIGTERM, how long queued frames may take to drain"
+    )
+    gil_switch_interval_ms: Annotated[float, Field(gt=0.0, le=100.0)] = Field(
+        default=1.0,
+        description="Python's thread switch interval: lower lets Zenoh's threads in sooner while a worker tracks (tail latency)",
+    )
+    metrics_host: str = Field(
+        default="127.0.0.1", description="bind address of /metrics, /healthz, /readyz"
+    )
+    metrics_port: Annotated[int, Field(ge=0, le=65535)] = Field(
+        default=9464, description="HTTP port for /metrics, /healthz, /readyz (0: disabled)"
+    )
+    metrics_vehicle_label: bool = Field(
+        default=False,
+        description="label frame counters by vehicle (bounded by metrics_max_vehicles)",
+    )
+    metrics_max_vehicles: Annotated[int, Field(ge=1, le=10_000)] = Field(
+        default=100, description="vehicles beyond this share the label value _other"
+    )
+    world_frame_id: Annotated[str, Field(min_length=1)] = Field(
+        default="world", description="frame_id of tracks when detections carry a pose"
+    )
+    log_format: LogFormat = Field(
+        default=LogFormat.JSON, description="json or kv (key=value) lines"
+    )
+    log_level: LogLevel = Field(default=LogLevel.INFO, description="debug logs every frame")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_listen(cls, data: Any) -> Any:
+        # A peer listens on loopback unless told otherwise; a client never listens.
+        if not isinstance(data, dict):
+            return data
+        z = data.get("zenoh", {})
+        if (
+            isinstance(z, Mapping)
+            and "listen" not in z
+            and "config_file" not in z  # a Zenoh config file says where to listen
+            and z.get("mode", "peer") == "peer"
+        ):
+            data = {**data, "zenoh": {**z, "listen": list(DEFAULT_LISTEN)}}
+        return data
+
+    @field_validator("ignore_classes")
+    @classmethod
+    def _no_blank(cls, v: list[str]) -> list[str]:
+        for name in v:
+            if not name.strip():
+                raise ValueError("class names must not be blank")
+        return v
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        file_values = _FILE_VALUES.get()
+        return (init_settings, env_settings, InitSettingsSource(settings_cls, file_values))
+
+    def tracker_config(self) -> TrackerConfig:
+        """The preset with the per-class overrides applied (ValueError names the bad value)."""
+        config = preset(self.preset)
+        if self.class_overrides is None:
+            return config
+        overrides = read_mapping(self.class_overrides)
+        classes: dict[str, ClassConfig] = dict(config.classes)
+        for name, changes in overrides.items():
+            if name not in classes:
+                raise ValueError(
+                    f"{self.class_overrides}: class {name!r} is not in preset {self.preset!r} "
+                    f"({', '.join(classes)})"
+                )
+            if not isinstance(changes, Mapping):
+                raise ValueError(f"{self.class_overrides}: {name} must be a table of fields")
+            try:
+                classes[name] = ClassConfig.model_validate(
+                    {**classes[name].model_dump(), **changes}
+                )
+            except ValidationError as e:
+                raise ValueError(f"{self.class_overrides}: {name}: {format_error(e)}") from None
+        return config.with_overrides(classes=classes)
+
+
+_FILE_VALUES: ContextVar[dict[str, Any]] = ContextVar("_FILE_VALUES", default={})  # noqa: B039
+
+
+def read_mapping(path: Path) -> dict[str, Any]:
+    """A TOML (``.toml``) or YAML (``.yaml``/``.yml``) file holding a mapping."""
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ValueError(f"cannot read {path}: {e.strerror}") from None
+    try:
+        if path.suffix == ".toml":
+            data: Any = tomllib.loads(text)
+        elif path.suffix in {".yaml", ".yml"}:
+            data = yaml.safe_load(text) or {}
+        else:
+            raise ValueError(f"{path}: use a .toml, .yaml or .yml file")
+    except (tomllib.TOMLDecodeError, yaml.YAMLError) as e:
+        raise ValueError(f"{path}: {e}".splitlines()[0]) from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping at the top level")
+    return data
+
+
+def format_error(e: ValidationError) -> str:
+    """One line per problem: ``field: message (got value)``."""
+    parts = []
+    for err in e.errors(include_url=False):
+        loc = ".".join(str(p) for p in err["loc"]) or "settings"
+        got = f" (got {err['input']!r})" if err["type"] != "missing" else ""
+        parts.append(f"{loc}: {err['msg']}{got}")
+    return "; ".join(parts)
+
+
+def load_settings(
+    config_file: Path | None = None, overrides: Mapping[str, Any] | None = None
+) -> ServiceSettings:
+    """Layer defaults < file < environment < ``overrides`` (flags). ValueError on bad input."""
+    file_values = read_mapping(config_file) if config_file is not None else {}
+    token = _FILE_VALUES.set(file_values)
+    try:
+        return ServiceSettings(**dict(overrides or {}))
+    except ValidationError as e:
+        raise ValueError(format_error(e)) from None
+    finally:
+        _FILE_VALUES.reset(token)
+
+
+def config_digest(config: TrackerConfig) -> str:
+    return hashlib.sha256(config.model_dump_json().encode()).hexdigest()
+
+
+# --- the reference table in docs/SERVICE.md ------------------------------------------------
+
+
+def _type_name(annotation: Any) -> str:
+    origin = get_origin(annotation)
+    if origin is Annotated:
+        return _type_name(get_args(annotation)[0])
+    if origin is Literal:
+        return " \\| ".join(str(a) for a in get_args(annotation))
+    if isinstance(annotation, type) and issubclass(annotation, StrEnum):
+        return " \\| ".join(m.value for m in annotation)
+    if origin is list:
+        return f"list[{_type_name(get_args(annotation)[0])}]"
+    args = [a for a in get_args(annotation) if a is not type(None)]
+    if args and len(args) < len(get_args(annotation)):
+        return f"{_type_name(args[0])} (optional)"
+    return getattr(annotation, "__name__", str(annotation))
+
+
+def _default(info: FieldInfo) -> str:
+    if info.default_factory is not None:
+        if info.default_factory is _default_instance:
+            return "`simpletrack-<hostname>`"
+        value: Any = info.default_factory()  # type: ignore[call-arg]
+    else:
+        value = info.default
+    if isinstance(value, BaseModel):
+        return "see below"
+    if isinstance(value, StrEnum):
+        value = value.value
+    return f"`{value!r}`" if value is not None else "none"
+
+
+_DOC_DEFAULTS = {
+    "zenoh.listen": f"`{list(DEFAULT_LISTEN)!r}` in peer mode without a config file, else `[]`"
+}
+
+
+def _rows(model: type[BaseModel], path: str, env: str) -> Iterator[str]:
+    for name, info in model.model_fields.items():
+        annotation = info.annotation
+        key, var = f"{path}{name}", f"{env}{name.upper()}"
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            yield from _rows(annotation, f"{key}.", f"{var}__")
+            continue
+        default = _DOC_DEFAULTS.get(key) or _default(info)
+        yield (
+            f"| `{key}` | `{var}` | {_type_name(annotation)} | {default} "
+            f"| {info.description or ''} |"
+        )
+
+
+def reference_markdown() -> str:
+    lines = [
+        "| setting (file key) | environment | type | default | meaning |",
+        "|---|---|---|---|---|",
+        *_rows(ServiceSettings, "", ENV_PREFIX),
+    ]
+    return "\n".join(lines)
+
+
+def _generated_blocks() -> dict[str, str]:
+    from simpletrack.server.metrics import reference_markdown as metrics_markdown
+
+    return {"settings": reference_markdown(), "metrics": metrics_markdown()}
+
+
+def _markers(name: str) -> tuple[str, str]:
+    return f"<!-- generated:{name} ({DOC_COMMAND}) -->", f"<!-- end generated:{name} -->"
+
+
+def refresh_docs(text: str) -> str:
+    """``text`` with every generated block (settings, metrics) rewritten from the code."""
+    for name, body in _generated_blocks().items():
+        begin, end = _markers(name)
+        if begin not in text or end not in text:
+            raise ValueError(f"missing the markers of the generated {name} block")
+        start, stop = text.index(begin), text.index(end) + len(end)
+        text = text[:start] + f"{begin}\n{body}\n{end}" + text[stop:]
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m simpletrack.server.settings", description=__doc__
+    )
+    parser.add_argument("--write", type=Path, help="refresh the generated blocks in this file")
+    args = parser.parse_args(argv)
+    if args.write is None:
+        print(reference_markdown())
+        return 0
+    args.write.write_text(refresh_docs(args.write.read_text()))
+    return 0
+
+
+assert set(PRESETS) == set(get_args(PresetName)), "PresetName must list simpletrack.core presets"
+
+if __name__ == "__main__":
+    sys.exit(main())

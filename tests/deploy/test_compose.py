@@ -1,0 +1,265 @@
+"""deploy/compose.yaml, the Grafana provisioning and dashboard, and the alert expressions:
+every file they name exists, the pieces point at each other, the service's environment is
+valid settings, and every PromQL query names a metric the service really exports."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from packaging.specifiers import SpecifierSet
+
+from simpletrack.server.settings import ServiceSettings, load_settings
+from simpletrack.sim.demo import DEMO_PRESET
+from tests.deploy.helpers import (
+    COMPOSE,
+    DASHBOARD,
+    DEPLOY,
+    PROMETHEUS_CONFIG,
+    TARGET_LABELS,
+    alert_rules,
+    dashboard,
+    dashboard_queries,
+    dependency_spec,
+    exported,
+    load_yaml,
+    matcher_labels,
+    promql_names,
+)
+
+COMPOSE_DOC: dict[str, Any] = load_yaml(COMPOSE)
+SERVICES: dict[str, Any] = COMPOSE_DOC["services"]
+
+
+def mounts(service: str) -> dict[str, Path]:
+    """container path -> host path of the bind mounts (relative to compose.yaml)."""
+    out = {}
+    for volume in SERVICES[service].get("volumes", []):
+        source, target = volume.split(":")[:2]
+        if source.startswith("."):
+            out[target] = (COMPOSE.parent / source).resolve()
+    return out
+
+
+def host_file(service: str, container_path: str) -> Path:
+    """The host file a container sees at ``container_path`` through a bind mount."""
+    for target, source in mounts(service).items():
+        if container_path == target or container_path.startswith(target.rstrip("/") + "/"):
+            return source / Path(container_path).relative_to(target)
+    raise AssertionError(f"{service}: nothing is mounted at {container_path}")
+
+
+def tracker_settings(monkeypatch: pytest.MonkeyPatch) -> ServiceSettings:
+    for key in list(os.environ):
+        if key.startswith("SIMPLETRACK_"):
+            monkeypatch.delenv(key)
+    env = SERVICES["simpletrack"]["environment"]
+    for key, value in env.items():
+        monkeypatch.setenv(key, interpolate(str(value)))
+    # The image's own environment (Dockerfile ENV) is under the compose environment.
+    monkeypatch.setenv("SIMPLETRACK_METRICS_HOST", "0.0.0.0")
+    monkeypatch.setenv("SIMPLETRACK_STATE_DIR", "/var/lib/simpletrack")
+    return load_settings()
+
+
+def interpolate(value: str) -> str:
+    """Compose's ``${VAR:-default}`` with VAR unset."""
+    return re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", value)
+
+
+def duration_s(text: str) -> float:
+    units = {"ms": 0.001, "s": 1, "m": 60, "h": 3600}
+    return sum(float(n) * units[u] for n, u in re.findall(r"(\d+(?:\.\d+)?)(ms|s|m|h)", text))
+
+
+# ----------------------------------------------------------------------------- compose
+def test_compose_has_the_four_services() -> None:
+    assert set(SERVICES) == {"zenoh-router", "simpletrack", "prometheus", "grafana"}
+
+
+def test_every_file_compose_names_exists() -> None:
+    build = SERVICES["simpletrack"]["build"]
+    context = (COMPOSE.parent / build["context"]).resolve()
+    assert (context / build["dockerfile"]).is_file()
+    assert (context / "pyproject.toml").is_file()
+    for service in SERVICES:
+        for target, source in mounts(service).items():
+            assert source.exists(), f"{service}: {source} (mounted at {target}) does not exist"
+    for name in ("zenoh-router", "prometheus", "grafana"):
+        assert mounts(name), f"{name} gets its configuration from deploy/"
+
+
+def test_every_port_is_published_on_loopback_only() -> None:
+    for name, service in SERVICES.items():
+        for port in service.get("ports", []):
+            assert str(port).startswith("127.0.0.1:"), f"{name} publishes {port} on every address"
+
+
+def test_images_are_pinned_and_the_router_matches_the_zenoh_library() -> None:
+    for name, service in SERVICES.items():
+        image = service["image"]
+        tag = image.rpartition(":")[2]
+        assert ":" in image and tag not in {"latest", ""}, f"{name}: {image} is not pinned"
+    router_version = SERVICES["zenoh-router"]["image"].rpartition(":")[2]
+    assert router_version in SpecifierSet(dependency_spec("eclipse-zenoh"))
+
+
+def test_the_tracker_is_a_client_of_the_router(monkeypatch: pytest.MonkeyPatch) -> None:
+    settings = tracker_settings(monkeypatch)
+    assert settings.preset == DEMO_PRESET  # `simpletrack demo --service external` works
+    assert settings.zenoh.mode == "client"
+    [endpoint] = settings.zenoh.connect
+    host, port = endpoint.removeprefix("tcp/").rsplit(":", 1)
+    assert host == "zenoh-router" and host in SERVICES
+    router_conf = host_file("zenoh-router", SERVICES["zenoh-router"]["command"][1])
+    assert f"tcp/{_router_ip()}:{port}" in router_conf.read_text()
+    assert "depends_on" in SERVICES["simpletrack"]
+    assert SERVICES["simpletrack"].get("restart") == "unless-stopped"  # router not up yet
+
+
+def _router_ip() -> str:
+    return str(SERVICES["zenoh-router"]["networks"]["simpletrack"]["ipv4_address"])
+
+
+def test_the_router_address_is_on_the_compose_network() -> None:
+    import ipaddress
+
+    subnet = COMPOSE_DOC["networks"]["simpletrack"]["ipam"]["config"][0]["subnet"]
+    assert ipaddress.ip_address(_router_ip()) in ipaddress.ip_network(subnet)
+
+
+def test_the_stop_grace_period_outlasts_the_shutdown_snapshot(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    settings = tracker_settings(monkeypatch)
+    service = SERVICES["simpletrack"]
+    assert service["stop_signal"] == "SIGTERM"
+    assert duration_s(service["stop_grace_period"]) >= settings.shutdown_timeout_s + 10
+
+
+def test_state_is_a_named_volume_at_the_state_dir(monkeypatch: pytest.MonkeyPatch) -> None:
+    settings = tracker_settings(monkeypatch)
+    named = {
+        v.split(":")[1]: v.split(":")[0]
+        for v in SERVICES["simpletrack"]["volumes"]
+        if not v.startswith(".")
+    }
+    assert named.get(str(settings.state_dir)) in COMPOSE_DOC["volumes"]
+
+
+def test_prometheus_scrapes_the_tracker_on_its_metrics_port(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    settings = tracker_settings(monkeypatch)
+    args = SERVICES["prometheus"]["command"]
+    config_path = next(a.split("=", 1)[1] for a in args if a.startswith("--config.file="))
+    config_file = host_file("prometheus", config_path)
+    assert config_file == PROMETHEUS_CONFIG
+    jobs = {j["job_name"]: j for j in load_yaml(config_file)["scrape_configs"]}
+    targets = [t for sc in jobs["simpletrack"]["static_configs"] for t in sc["targets"]]
+    assert targets == [f"simpletrack:{settings.metrics_port}"]
+    for rule_file in load_yaml(config_file)["rule_files"]:
+        assert (config_file.parent / rule_file).is_file()
+    router_targets = [t for sc in jobs["zenoh-router"]["static_configs"] for t in sc["targets"]]
+    rest = re.search(r'http_port:\s*"([^"]+)"', (DEPLOY / "zenoh" / "router.json5").read_text())
+    assert rest is not None
+    host, port = rest.group(1).rsplit(":", 1)
+    assert host == _router_ip()
+    assert router_targets == [f"zenoh-router:{port}"]
+
+
+def test_grafana_is_provisioned_with_the_datasource_and_the_dashboard() -> None:
+    provisioning = host_file("grafana", "/etc/grafana/provisioning")
+    [datasource] = load_yaml(provisioning / "datasources" / "prometheus.yaml")["datasources"]
+    listen = next(
+        a for a in SERVICES["prometheus"]["command"] if a.startswith("--web.listen-address=")
+    )
+    assert datasource["url"] == f"http://prometheus{listen.rpartition('=')[2]}"
+    [provider] = load_yaml(provisioning / "dashboards" / "simpletrack.yaml")["providers"]
+    dashboards_dir = host_file("grafana", provider["options"]["path"])
+    assert DASHBOARD.parent == dashboards_dir
+    home = SERVICES["grafana"]["environment"]["GF_DASHBOARDS_DEFAULT_HOME_DASHBOARD_PATH"]
+    assert host_file("grafana", home) == DASHBOARD
+    # the dashboard's datasource variable defaults to the provisioned datasource
+    variables = {v["name"]: v for v in dashboard()["templating"]["list"]}
+    assert variables["datasource"]["current"]["value"] == datasource["uid"]
+
+
+# ----------------------------------------------------------------------------- PromQL names
+EXPORTED_NAMES, EXPORTED_LABELS = exported()
+KNOWN_NAMES = EXPORTED_NAMES | {"up"}  # `up` is Prometheus's own, per target
+KNOWN_LABELS = EXPORTED_LABELS | TARGET_LABELS
+
+
+def test_the_promql_reader_finds_names_and_labels() -> None:
+    names, labels = promql_names(
+        'histogram_quantile(0.99, sum by (le, stage) (rate(a_bucket{job="x"}[$__rate_interval])))'
+        " / on(instance) group_left sum(b_total offset 5m) > bool 0 and c"
+    )
+    assert names == {"a_bucket", "b_total", "c"}
+    assert labels == {"le", "stage", "instance"}
+    assert matcher_labels('x{job="a", instance=~"$instance", reason!="q"}') == {
+        "job",
+        "instance",
+        "reason",
+    }
+
+
+def test_the_dashboard_is_valid_and_every_query_names_an_exported_metric() -> None:
+    data = dashboard()
+    assert data["uid"] and data["title"] and data["panels"]
+    assert len({p["id"] for p in data["panels"]}) == len(data["panels"])
+    queries = list(dashboard_queries())
+    assert queries
+    for title, expr in queries:
+        names, labels = promql_names(expr)
+        assert names, f"{title}: {expr} selects no metric"
+        assert names <= KNOWN_NAMES, f"{title}: {sorted(names - KNOWN_NAMES)} are not exported"
+        used = labels | matcher_labels(expr)
+        assert used <= KNOWN_LABELS, f"{title}: no label {sorted(used - KNOWN_LABELS)}"
+
+
+def test_the_dashboard_shows_what_an_operator_needs() -> None:
+    text = "\n".join(expr for _, expr in dashboard_queries())
+    titles = " ".join(p["title"].lower() for p in dashboard()["panels"])
+    for metric in (
+        "simpletrack_frames_received_total",
+        "simpletrack_frames_tracked_total",
+        "simpletrack_frames_rejected_total",
+        "simpletrack_frames_dropped_total",
+        "simpletrack_active_sensors",
+        "simpletrack_active_tracks",
+        "simpletrack_snapshot_age_seconds",
+    ):
+        assert metric in text, metric
+    for q in ("0.5", "0.9", "0.99"):
+        assert f"histogram_quantile({q}, sum by (le) (rate(simpletrack_end_to_end" in text
+    assert "sum by (reason)" in text  # rejects and drops by reason
+    for word in ("frame rate", "latency", "rejected", "dropped", "sensors", "tracks", "snapshot"):
+        assert word in titles, word
+
+
+def test_every_alert_names_an_exported_metric() -> None:
+    rules = alert_rules()
+    assert {r["alert"] for r in rules} >= {
+        "SimpletrackDown",
+        "SimpletrackNoFrames",
+        "SimpletrackLatencyHigh",
+        "SimpletrackRejectsRising",
+        "SimpletrackSnapshotTooOld",
+    }
+    for rule in rules:
+        names, labels = promql_names(rule["expr"])
+        assert names <= KNOWN_NAMES, f"{rule['alert']}: {sorted(names - KNOWN_NAMES)}"
+        assert labels | matcher_labels(rule["expr"]) <= KNOWN_LABELS, rule["alert"]
+        assert rule["labels"]["severity"] in {"critical", "warning"}
+        assert rule["annotations"]["summary"] and rule["annotations"]["description"]
+
+
+def test_the_dashboard_json_is_formatted_like_it_was_saved() -> None:
+    text = DASHBOARD.read_text()
+    assert text == json.dumps(json.loads(text), indent=2) + "\n"

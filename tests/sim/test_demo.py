@@ -1,0 +1,103 @@
+"""``simpletrack demo``: runs on its own (no router, no data), ends cleanly and reports."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from simpletrack.sim.demo import DemoOptions, FleetDemo, ServiceMode
+from simpletrack.sim.simulator import SimConfig
+from tests.service_helpers import ROOT
+
+pytestmark = pytest.mark.zenoh
+MAIN = [sys.executable, "-c", "import sys; from simpletrack.cli.main import main; sys.exit(main())"]
+ENV = {**os.environ, "NO_COLOR": "1"}
+
+
+def test_demo_duration_5_exits_0_with_a_summary(tmp_path: Path) -> None:
+    summary = tmp_path / "demo.json"
+    proc = subprocess.run(
+        [*MAIN, "demo", "--duration", "5", "--json", str(summary)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=ENV,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    out = proc.stdout
+    assert "simpletrack demo: duration" in out
+    assert "MOTA" in out and "tracks" in out and "latency" in out
+    s = json.loads(summary.read_text())
+    frames = s["frames"]
+    # 3 vehicles x 2 sensors at 10 Hz for 5 s, every frame answered.
+    assert frames["published"] >= 0.8 * 5 * 10 * 6
+    assert (
+        frames["tracked"] + sum(frames["rejected"].values()) + frames["unanswered"]
+        == frames["published"]
+    )
+    assert frames["tracked"] >= 0.95 * frames["published"]
+    assert s["tracks"]["active"] > 0 and s["tracks"]["ids_seen"] > 0
+    # The simulator's world is tracked for real (measured: MOTA ~0.70 over 5 s).
+    assert s["mot"]["gt"] > 1000 and s["mot"]["mota"] > 0.5
+    assert s["latency_ms"]["p50"] is not None
+
+
+def test_ctrl_c_ends_the_demo_cleanly_with_its_summary() -> None:
+    proc = subprocess.Popen(
+        [*MAIN, "demo", "--vehicles", "1"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+    )
+    assert proc.stdout is not None
+    line = proc.stdout.readline()  # not a terminal: one line once the fleet is running
+    assert line.startswith("demo: running:"), line
+    time.sleep(1.5)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out + err
+    assert "simpletrack demo: interrupted" in out and "MOTA" in out
+    assert "Traceback" not in err
+
+
+def test_broken_frames_are_rejected_and_counted() -> None:
+    demo = FleetDemo(
+        DemoOptions(
+            sim=SimConfig(seed=2, vehicles=1),
+            duration=2.0,
+            inject_errors=0.3,
+            service=ServiceMode.INPROCESS,
+        )
+    )
+    result = demo.run()
+    rejected = result.stats.rejected
+    assert set(rejected) == {"non_finite"}
+    assert rejected["non_finite"] > 3
+    st = result.stats
+    assert st.tracked + rejected["non_finite"] + result.unanswered == st.sent
+    assert st.tracked > 10
+
+
+def test_bad_arguments_are_one_line_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    from simpletrack.cli.main import main
+
+    for args, word in (
+        (["--duration", "-1"], "--duration"),
+        (["--vehicles", "0"], "--vehicles"),
+        (["--inject-errors", "2"], "--inject-errors"),
+        (["--service", "external"], "--connect"),
+    ):
+        assert main(["demo", *args]) == 2, args
+        err = capsys.readouterr().err
+        assert err.startswith("simpletrack demo: error: ") and word in err, err
+        assert len(err.strip().splitlines()) == 1, err

@@ -1,0 +1,155 @@
+"""Decoding never raises and never hits its catch-all: any bytes give a frame or a typed reason."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from simpletrack.wire import (
+    BoxArrays,
+    DecodedDetections,
+    DecodeLimits,
+    ErrorReason,
+    Rejection,
+    decode_detection_frame,
+    decode_track_frame,
+    encode_detection_frame,
+)
+
+CODES = {"Car": 0, "Pedestrian": 1}
+LIMITS = DecodeLimits(max_bytes=1 << 16, max_boxes=64)
+FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _valid() -> bytes:
+    n = 3
+    return encode_detection_frame(
+        vehicle="v1",
+        sensor="s1",
+        seq=1,
+        stamp_ns=2,
+        frame_id="f",
+        pose=np.eye(4),
+        boxes=BoxArrays(
+            classes=("Car", "Pedestrian"),
+            class_index=np.array([0, 1, 0], np.int32),
+            center=np.zeros((n, 3), np.float32),
+            size=np.ones((n, 3), np.float32),
+            yaw=np.zeros(n, np.float32),
+            score=np.ones(n, np.float32),
+            velocity=np.zeros((n, 2), np.float32),
+        ),
+    )
+
+
+VALID = _valid()
+VALID_OBJ: dict[str, Any] = msgpack.unpackb(VALID, raw=False)
+
+
+def check(data: bytes) -> None:
+    out = decode_detection_frame(data, LIMITS, CODES)
+    assert isinstance(out, DecodedDetections | Rejection)
+    if isinstance(out, Rejection):
+        assert isinstance(out.reason, ErrorReason)
+        assert out.reason is not ErrorReason.INTERNAL_ERROR, out.detail
+    tracks = decode_track_frame(data, LIMITS)
+    if isinstance(tracks, Rejection):
+        assert tracks.reason is not ErrorReason.INTERNAL_ERROR, tracks.detail
+
+
+msgpack_values = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(min_value=-(2**63), max_value=2**64 - 1)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=20)
+    | st.binary(max_size=64),
+    lambda children: (
+        st.lists(children, max_size=5) | st.dictionaries(st.text(max_size=12), children, max_size=5)
+    ),
+    max_leaves=20,
+)
+
+
+@FUZZ
+@given(st.binary(max_size=512))
+def test_random_bytes(data: bytes) -> None:
+    check(data)
+
+
+@FUZZ
+@given(msgpack_values)
+def test_random_msgpack_documents(value: Any) -> None:
+    check(msgpack.packb(value, use_bin_type=True))
+
+
+def _paths(obj: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    out = []
+    for k, v in obj.items():
+        out.append((*prefix, k))
+        if isinstance(v, dict):
+            out += _paths(v, (*prefix, k))
+    return out
+
+
+PATHS = _paths(VALID_OBJ)
+
+
+@FUZZ
+@given(st.sampled_from(PATHS), msgpack_values | st.just("__delete__"))
+def test_one_field_replaced_or_removed(path: tuple[str, ...], value: Any) -> None:
+    obj = msgpack.unpackb(VALID, raw=False)
+    target = obj
+    for p in path[:-1]:
+        target = target[p]
+    if value == "__delete__":
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    check(msgpack.packb(obj, use_bin_type=True))
+
+
+@FUZZ
+@given(st.data())
+def test_bytes_flipped_inserted_or_cut(data: st.DataObject) -> None:
+    buf = bytearray(VALID)
+    for _ in range(data.draw(st.integers(1, 6))):
+        op = data.draw(st.sampled_from(["flip", "insert", "cut"]))
+        i = data.draw(st.integers(0, max(0, len(buf) - 1)))
+        if op == "flip" and buf:
+            buf[i] ^= data.draw(st.integers(1, 255))
+        elif op == "insert":
+            buf[i:i] = data.draw(st.binary(min_size=1, max_size=8))
+        elif buf:
+            del buf[i : i + data.draw(st.integers(1, 16))]
+    check(bytes(buf))
+
+
+@FUZZ
+@given(
+    st.integers(0, 8),
+    st.lists(st.floats(width=32, allow_nan=True, allow_infinity=True), min_size=24, max_size=24),
+    st.lists(st.integers(-3, 4), min_size=8, max_size=8),
+)
+def test_column_contents(n: int, floats: list[float], index: list[int]) -> None:
+    """Well-formed maps with arbitrary column values: finite/size/index rules decide."""
+    f = np.array(floats, np.float32)
+    obj = msgpack.unpackb(VALID, raw=False)
+    b = obj["boxes"]
+    b["count"] = n
+    b["class_index"] = np.array(index[:n], np.int32).tobytes()
+    b["center"] = f[: 3 * n].tobytes()
+    b["size"] = f[-3 * n :].tobytes() if n else b""
+    b["yaw"] = f[:n].tobytes()
+    b["score"] = f[:n].tobytes()
+    b["velocity"] = f[: 2 * n].tobytes()
+    data = msgpack.packb(obj, use_bin_type=True)
+    check(data)
+    out = decode_detection_frame(data, LIMITS, CODES)
+    if isinstance(out, DecodedDetections):
+        assert np.isfinite(out.boxes.center).all() and (out.boxes.size > 0).all()
+        assert ((out.boxes.class_index >= 0) & (out.boxes.class_index < 2)).all()
