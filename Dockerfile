@@ -28,13 +28,14 @@ ENV PIP_NO_CACHE_DIR=1 \
 WORKDIR /build
 RUN python -m venv "${VENV}"
 
-# Dependencies first, from pyproject.toml alone, so that editing the source reuses this layer.
+# Dependencies first (the client library's and the service extra's), from pyproject.toml alone,
+# so that editing the source reuses this layer.
 COPY pyproject.toml ./
-RUN python -c "import tomllib; deps = tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']; print(*deps, sep='\n')" > requirements.txt \
+RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; print(*p['dependencies'], *p['optional-dependencies']['service'], sep='\n')" > requirements.txt \
  && "${VENV}/bin/pip" install -r requirements.txt
 
 # Then the package itself; its dependencies are all in the layer above.
-COPY README.md ./
+COPY README.md LICENSE ./
 COPY schemas ./schemas
 COPY service ./service
 COPY clients ./clients
