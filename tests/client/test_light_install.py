@@ -95,3 +95,10 @@ def test_a_client_only_vehicle_gets_its_tracks_from_a_real_service(
     assert len(result["ids"]) == 3 and all(len(ids) == 1 for ids in result["ids"])
     assert len({ids[0] for ids in result["ids"]}) == 1, result["ids"]  # one object, one id
     assert not set(SERVICE_ONLY) & set(result["modules"])
+
+
+def test_the_command_on_a_client_install_names_the_extra_it_needs(light_python: Path) -> None:
+    out = _run([str(light_python.parent / "simpletrack"), "serve", "--help"], cwd="/")
+    assert out.returncode == 2
+    assert "pip install 'simpletrack-service[service]'" in out.stderr, out.stderr
+    assert "Traceback" not in out.stderr
