@@ -182,3 +182,14 @@ def open_session(options: ZenohOptions | None = None, **kwargs: object) -> zenoh
     elif kwargs:
         options = ZenohOptions.model_validate({**options.model_dump(), **kwargs})
     return zenoh.open(options.to_config())
+
+
+class Congestion(StrEnum):
+    """What a publisher does when Zenoh cannot keep up: wait (lossless) or drop the sample."""
+
+    BLOCK = "block"
+    DROP = "drop"
+
+
+# Where a service listens by default, and so where a client looks for one on this machine.
+DEFAULT_LISTEN = ("tcp/127.0.0.1:7447",)

@@ -19,13 +19,10 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-import numpy as np
 import zenoh
 
-from simpletrack.core.boxes import Boxes
 from simpletrack.core.config import TrackerConfig
 from simpletrack.core.frames import Frame, Tracks
-from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.server.settings import config_digest
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.wire.codec import (
@@ -34,10 +31,9 @@ from simpletrack.wire.codec import (
     decode_track_frame,
     encode_detection_frame,
 )
-from simpletrack.wire.columns import BoxArrays, TrackArrays
+from simpletrack.wire.convert import boxes_to_wire, tracks_from_wire
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import FrameError, ServiceStatus
-from simpletrack.wire.reasons import WireTrackState
 
 ROOT = Path(__file__).resolve().parents[2]
 STAMP_ORIGIN_NS = 1_000_000_000  # frame stamps (seconds) are sent as origin + stamp * 1e9
@@ -45,25 +41,6 @@ STAMP_ORIGIN_NS = 1_000_000_000  # frame stamps (seconds) are sent as origin + s
 
 class RemoteError(RuntimeError):
     """The service refused a frame, or did not answer in time."""
-
-
-def wire_to_tracks(t: TrackArrays) -> Tracks:
-    params = np.concatenate([t.center, t.yaw[:, None], t.size], axis=1).astype(np.float64)
-    state = np.where(
-        t.state == WireTrackState.TENTATIVE, TrackState.TENTATIVE, TrackState.CONFIRMED
-    )
-    # The wire does not say how a track was updated; "not updated this frame" is what matters.
-    update = np.where(t.time_since_update == 0, UpdateKind.MATCHED, UpdateKind.COASTED)
-    return Tracks(
-        ids=t.id.astype(np.int64),
-        boxes=Boxes.from_arrays(params, t.score, t.class_index),
-        velocity=t.velocity.astype(np.float64),
-        state=state.astype(np.int8),
-        update=update.astype(np.int8),
-        hits=t.hits.astype(np.int32),
-        age=t.age.astype(np.int32),
-        time_since_update=t.time_since_update.astype(np.int32),
-    )
 
 
 def track_sequence_over_zenoh(
@@ -91,7 +68,7 @@ def track_sequence_over_zenoh(
         if isinstance(out, Rejection):
             return
         with cond:
-            results[out[0].seq] = wire_to_tracks(out[1])
+            results[out[0].seq] = tracks_from_wire(out[1])
             cond.notify_all()
 
     def on_error(sample: zenoh.Sample) -> None:
@@ -129,7 +106,7 @@ def track_sequence_over_zenoh(
                     seq=k,
                     stamp_ns=STAMP_ORIGIN_NS + round(frame.stamp * 1e9),
                     frame_id="sensor",
-                    boxes=BoxArrays.from_boxes(frame.boxes, classes),
+                    boxes=boxes_to_wire(frame.boxes, classes),
                     pose=frame.pose,
                     key_frame=frame.key_frame,
                 )

@@ -167,7 +167,7 @@ def test_errors_come_back_by_callback_and_iterator(service: ServiceProcess) -> N
 
 def test_publisher_input_forms_agree(service: ServiceProcess) -> None:
     """Boxes, BoxArrays and a list of Box give the service the same frame."""
-    from simpletrack.client.publisher import boxes_to_arrays
+    from simpletrack.wire.convert import boxes_to_wire
 
     boxes = cars(0, n=1)
     as_list = [Box(10, 0, 0.8, 0, 4, 1.8, 1.6, 0.9, "Car")]
@@ -180,7 +180,7 @@ def test_publisher_input_forms_agree(service: ServiceProcess) -> None:
         assert pa.wait_for_service(10)
         time.sleep(0.3)
         pa.publish(boxes, stamp_ns=stamp(0))
-        pb.publish(boxes_to_arrays(boxes, CLASSES), stamp_ns=stamp(0))
+        pb.publish(boxes_to_wire(boxes, CLASSES), stamp_ns=stamp(0))
         pc.publish(as_list, stamp_ns=stamp(0))
         got = {m.sensor: m for m in collect(sub, 3)}
     assert sorted(got) == ["a", "b", "c"]

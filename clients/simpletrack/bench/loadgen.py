@@ -26,11 +26,13 @@ import msgpack
 import numpy as np
 import zenoh
 
+from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.kitti import camera_to_tracker
 from simpletrack.datasets.nuscenes import TYPE_NAMES, scene_files
 from simpletrack.session import open_session
 from simpletrack.wire import BoxArrays
 from simpletrack.wire.codec import pack
+from simpletrack.wire.convert import boxes_to_wire
 from simpletrack.wire.models import BoxColumns
 from simpletrack.wire.reasons import SCHEMA_VERSION
 
@@ -73,43 +75,24 @@ def scene_box_arrays(path: Path) -> list[BoxArrays]:
     """Every frame of a nuScenes detection file, every class, as the wire's box columns."""
     raw = np.loadtxt(path, delimiter=",", ndmin=2)
     frame = raw[:, 0].astype(np.int64)
-    params = camera_to_tracker(raw[:, 7:14]).astype(np.float32)
+    params = camera_to_tracker(raw[:, 7:14])
     order = np.argsort(frame, kind="stable")
     raw, frame, params = raw[order], frame[order], params[order]
     bounds = np.searchsorted(frame, np.arange(int(frame.max()) + 2))
     out = []
     for k in range(int(frame.max()) + 1):
         rows = slice(bounds[k], bounds[k + 1])
-        out.append(
-            BoxArrays(
-                classes=ALL_CLASSES,
-                class_index=raw[rows, 1].astype(np.int32) - 1,
-                center=params[rows, 0:3],
-                size=params[rows, 4:7],
-                yaw=params[rows, 3],
-                score=raw[rows, 6].copy(),
-            )
-        )
+        boxes = Boxes.from_arrays(params[rows], raw[rows, 6], raw[rows, 1].astype(np.int32) - 1)
+        out.append(boxes_to_wire(boxes, ALL_CLASSES))
     return out
 
 
 def synthetic_box_arrays(n: int, seed: int) -> list[BoxArrays]:
     from simpletrack.bench.core import synthetic_stream  # the sweep's moving grid of cars
 
-    out = []
-    for f in synthetic_stream(n, SYNTHETIC_FRAMES, seed=seed):
-        p = f.boxes.params.astype(np.float32)
-        out.append(
-            BoxArrays(
-                classes=("car",),
-                class_index=np.zeros(n, np.int32),
-                center=p[:, 0:3],
-                size=p[:, 4:7],
-                yaw=p[:, 3],
-                score=f.boxes.score.copy(),
-            )
-        )
-    return out
+    return [
+        boxes_to_wire(f.boxes, ("car",)) for f in synthetic_stream(n, SYNTHETIC_FRAMES, seed=seed)
+    ]
 
 
 def box_columns(boxes: BoxArrays) -> dict[str, Any]:

@@ -4,7 +4,7 @@
 
     with DetectionPublisher.connect("veh01", "lidar", classes=("vehicle", "pedestrian"),
                                     options=ZenohOptions(connect=["tcp/127.0.0.1:7447"])) as pub:
-        pub.publish(boxes)                      # simpletrack.core.Boxes, BoxArrays or [Box, ...]
+        pub.publish(boxes)                      # BoxArrays, [Box, ...] or simpletrack.core.Boxes
         for err in pub.errors(timeout=0):       # frames the service refused, if any
             print(err.seq, err.reason, err.detail)
 
@@ -18,10 +18,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -29,9 +30,7 @@ import zenoh
 
 from simpletrack.client.exit_hooks import close_before_thread_join
 from simpletrack.client.mailbox import Mailbox
-from simpletrack.core.boxes import Boxes
-from simpletrack.server.settings import Congestion
-from simpletrack.session import ZenohOptions, open_session
+from simpletrack.session import DEFAULT_LISTEN, Congestion, ZenohOptions, open_session
 from simpletrack.wire import (
     BoxArrays,
     FrameError,
@@ -41,6 +40,11 @@ from simpletrack.wire import (
 )
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN
+
+if TYPE_CHECKING:
+    from typing_extensions import TypeIs
+
+    from simpletrack.wire.convert import Boxes
 
 log = logging.getLogger(__name__)
 
@@ -77,9 +81,11 @@ def check_name(kind: str, value: str) -> str:
     return value
 
 
-def boxes_to_arrays(boxes: Boxes, classes: Sequence[str]) -> BoxArrays:
-    """Core ``Boxes`` (codes index ``classes``) as wire columns."""
-    return BoxArrays.from_boxes(boxes, classes)
+def _is_core_boxes(obj: object) -> TypeIs[Boxes]:
+    # Only a process that has loaded the core can hold core Boxes: a vehicle that never
+    # imports it never pays for it here.
+    core = sys.modules.get("simpletrack.core.boxes")
+    return core is not None and isinstance(obj, core.Boxes)
 
 
 def box_list_to_arrays(boxes: Sequence[Box], classes: Sequence[str]) -> BoxArrays:
@@ -164,7 +170,7 @@ class DetectionPublisher:
     # ----------------------------------------------------------------- publishing
     def publish(
         self,
-        boxes: Boxes | BoxArrays | Sequence[Box],
+        boxes: BoxArrays | Sequence[Box] | Boxes,
         *,
         stamp_ns: int | None = None,
         pose: npt.ArrayLike | None = None,
@@ -172,11 +178,14 @@ class DetectionPublisher:
         seq: int | None = None,
     ) -> int:
         """Send one frame; returns its ``seq``. ``pose`` is the optional 4x4 sensor->world;
-        ``seq`` (default: one more than the last) may skip ahead, never go back."""
-        if isinstance(boxes, Boxes):
-            arrays = boxes_to_arrays(boxes, self.classes)
-        elif isinstance(boxes, BoxArrays):
+        ``seq`` (default: one more than the last) may skip ahead, never go back. Core
+        ``Boxes`` (codes index ``classes``) go through ``simpletrack.wire.convert``."""
+        if isinstance(boxes, BoxArrays):
             arrays = boxes
+        elif _is_core_boxes(boxes):
+            from simpletrack.wire.convert import boxes_to_wire
+
+            arrays = boxes_to_wire(boxes, self.classes)
         else:
             arrays = box_list_to_arrays(boxes, self.classes)
         return self.publish_arrays(
@@ -274,8 +283,6 @@ class DetectionPublisher:
 
 def default_options() -> ZenohOptions:
     """Peer mode, no listening, connecting to a service on this machine (its default listen)."""
-    from simpletrack.server.settings import DEFAULT_LISTEN
-
     return ZenohOptions(connect=list(DEFAULT_LISTEN))
 
 

@@ -22,7 +22,7 @@ import logging
 import time
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -30,10 +30,12 @@ import zenoh
 from simpletrack.client.exit_hooks import close_before_thread_join
 from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import _close_quietly, check_name, default_options
-from simpletrack.core.boxes import Boxes
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.wire import Rejection, TrackArrays, TrackFrame, decode_track_frame
 from simpletrack.wire.keys import Keys
+
+if TYPE_CHECKING:
+    from simpletrack.wire.convert import Boxes
 
 log = logging.getLogger(__name__)
 
@@ -73,27 +75,12 @@ class TrackMessage:
 
     def boxes(self, classes: Sequence[str] | None = None) -> Boxes:
         """The tracks as core ``Boxes`` (float64); class codes index ``classes`` (default:
-        the service's table). Tracks of classes missing from ``classes`` are dropped."""
-        t = self.tracks
-        params = np.empty((len(t), 7))
-        params[:, 0:3] = t.center
-        params[:, 3] = t.yaw
-        params[:, 4:7] = t.size
-        codes = t.class_index.astype(np.int32)
-        keep = np.ones(len(t), dtype=bool)
-        if classes is not None:
-            remap = np.array(
-                [classes.index(c) if c in classes else -1 for c in t.classes], np.int32
-            )
-            codes = remap[codes] if len(t) else codes
-            keep = codes >= 0
-        boxes = Boxes(
-            params=params,
-            score=t.score.astype(np.float64),
-            cls=codes,
-            velocity=t.velocity[:, :2].astype(np.float64),
-        )
-        return boxes if keep.all() else boxes.take(keep)
+        the service's table). Tracks of classes missing from ``classes`` are dropped.
+
+        Needs the service extra (the core, through ``simpletrack.wire.convert``)."""
+        from simpletrack.wire.convert import track_boxes_from_wire
+
+        return track_boxes_from_wire(self.tracks, classes)
 
     def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
         """Track ids, in the order of ``boxes(classes)``."""

@@ -23,10 +23,10 @@ from typing import IO, Any
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.client.subscriber import TrackMessage
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.kitti import Calib, ResultRows, format_results, read_calib, tracks_to_rows
-from simpletrack.wire import WireTrackState
+from simpletrack.wire import TrackArrays, TrackFrame, WireTrackState
+from simpletrack.wire.convert import track_boxes_from_wire
 
 STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
 
@@ -35,9 +35,9 @@ def _r(a: npt.NDArray[Any], digits: int = 4) -> list[Any]:
     return np.round(a.astype(np.float64), digits).tolist()  # type: ignore[no-any-return]
 
 
-def message_to_json(msg: TrackMessage) -> dict[str, Any]:
-    t, f = msg.tracks, msg.frame
-    box = np.concatenate([t.center, t.yaw[:, None], t.size], axis=1)
+def message_to_json(f: TrackFrame, t: TrackArrays) -> dict[str, Any]:
+    """One received track frame (header and columns) as a JSON lines object."""
+    box = track_boxes_from_wire(t).params
     tracks = [
         {
             "id": i,
@@ -52,7 +52,7 @@ def message_to_json(msg: TrackMessage) -> dict[str, Any]:
         }
         for i, c, b, s, v, st, h, a, tsu in zip(
             t.id.tolist(),
-            msg.class_names(),
+            [t.classes[i] for i in t.class_index.tolist()],
             _r(box),
             _r(t.score),
             _r(t.velocity),
@@ -148,11 +148,11 @@ class KittiWriter:
             self._calib[name] = calib
         return self._calib[name]
 
-    def write(self, msg: TrackMessage) -> None:
-        name = msg.sensor
+    def write(self, frame: TrackFrame, tracks: TrackArrays) -> None:
+        name = frame.sensor
         self.calib_for(name)
-        boxes = msg.boxes()
-        rows = tracks_to_rows(msg.seq, msg.tracks.id.astype(np.int64), boxes, msg.tracks.classes)
+        boxes = track_boxes_from_wire(tracks)
+        rows = tracks_to_rows(frame.seq, tracks.id.astype(np.int64), boxes, tracks.classes)
         self._rows.setdefault(name, []).append(rows)
         self.frames += 1
 

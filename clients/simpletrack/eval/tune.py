@@ -45,7 +45,6 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import ValidationError
 
-from simpletrack.cli.eval import track_sequence
 from simpletrack.core.config import TrackerConfig, preset
 from simpletrack.datasets.kitti import (
     KITTI_CLASSES,
@@ -67,6 +66,7 @@ from simpletrack.eval.kitti import (
     recall_points,
 )
 from simpletrack.eval.kitti_data import Problem, build_problem
+from simpletrack.eval.tracking import track_sequence
 
 DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "kitti"
 

@@ -397,7 +397,7 @@ class FleetDemo:
         if truth is not None:
             st.scorer.update(truth.ids, truth.boxes, ids, msg.boxes(self.class_names), truth.ignore)
         if self._tracks_out is not None:
-            self._tracks_out.write(message_to_json(msg))
+            self._tracks_out.write(message_to_json(msg.frame, msg.tracks))
 
     def _unanswered(self) -> int:
         return max(0, self.stats.sent - self.stats.tracked - sum(self.stats.rejected.values()))

@@ -6,14 +6,11 @@ column of width k occupies bytes ``[i*k*itemsize, (i+1)*k*itemsize)``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import JsonValue
-
-from simpletrack.core.boxes import Boxes
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -105,22 +102,6 @@ class BoxArrays:
 
     def __len__(self) -> int:
         return int(self.center.shape[0])
-
-    @classmethod
-    def from_boxes(cls, boxes: Boxes, classes: Sequence[str]) -> BoxArrays:
-        """Core ``Boxes`` (codes index ``classes``) in wire precision."""
-        if len(boxes) and int(boxes.cls.max()) >= len(classes):
-            raise ValueError(f"class code {int(boxes.cls.max())} has no name in {tuple(classes)}")
-        p = boxes.params
-        return cls(
-            classes=tuple(classes),
-            class_index=boxes.cls.astype(np.int32),
-            center=p[:, 0:3].astype(np.float32),
-            size=p[:, 4:7].astype(np.float32),
-            yaw=p[:, 3].astype(np.float32),
-            score=boxes.score.astype(np.float64),
-            velocity=None if boxes.velocity is None else boxes.velocity.astype(np.float32),
-        )
 
     def class_names(self) -> list[str]:
         return [self.classes[i] for i in self.class_index.tolist()]

@@ -10,8 +10,7 @@ import zenoh
 from pydantic import ValidationError
 
 from simpletrack.cli.errors import UserError
-from simpletrack.server.settings import DEFAULT_LISTEN
-from simpletrack.session import ZenohOptions, add_zenoh_args, open_session
+from simpletrack.session import DEFAULT_LISTEN, ZenohOptions, add_zenoh_args, open_session
 
 ZENOH_NOTE = (
     "Zenoh: peer mode by default, connecting to a service on this machine\n"

@@ -26,6 +26,7 @@ from simpletrack.datasets.kitti import (
     write_results,
 )
 from simpletrack.eval.kitti import METRIC_NAMES, evaluate
+from simpletrack.eval.tracking import track_sequence
 
 EPILOG = """examples:
   # track the 10 train sequences with the kitti preset, write OUT/data_0/*.txt, score them
@@ -96,17 +97,6 @@ def register(sub: Any) -> None:
         help="run the tracker in-process (local) or through the service (zenoh)",
     )
     k.set_defaults(func=run)
-
-
-def track_sequence(frames: Sequence[SequenceFrame], config: TrackerConfig) -> list[Tracks]:
-    """The tracker's output for every frame of one sequence, in order (in-process).
-
-    This is the hook for other transports: a Zenoh path takes the same frames and config and
-    returns the same list."""
-    from simpletrack.core.tracker import Tracker  # the tracker's import cost only when tracking
-
-    tracker = Tracker(config)
-    return [tracker.step(Frame(boxes=f.boxes, stamp=f.stamp)) for f in frames]
 
 
 def _split(text: str, what: str) -> list[str]:

@@ -134,10 +134,10 @@ def run(args: argparse.Namespace) -> int:
                 continue
             last = time.monotonic()
             if jsonl is not None:
-                jsonl.write(message_to_json(msg))
+                jsonl.write(message_to_json(msg.frame, msg.tracks))
             if kitti is not None:
                 try:
-                    kitti.write(msg)
+                    kitti.write(msg.frame, msg.tracks)
                 except FileNotFoundError as exc:
                     raise UserError(str(exc)) from None
             frames += 1

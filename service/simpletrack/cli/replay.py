@@ -24,7 +24,7 @@ from simpletrack.client.publisher import DetectionPublisher, check_name
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
 from simpletrack.core.boxes import Boxes
 from simpletrack.core.config import preset
-from simpletrack.server.settings import Congestion
+from simpletrack.session import Congestion
 from simpletrack.wire import FrameError
 
 EPILOG = f"""\

@@ -13,10 +13,11 @@ from typing import Any
 from simpletrack.cli.errors import UserError
 from simpletrack.core.config import TieOrder, TrackerConfig, VerticalOverlap, preset
 from simpletrack.core.frames import Frame
-from simpletrack.core.lifecycle import TrackState
 from simpletrack.core.tracker import Tracker
 from simpletrack.datasets.nuscenes import read_scene, scene_files
 from simpletrack.eval.parity import compare, group_rows
+from simpletrack.wire.convert import wire_states
+from simpletrack.wire.reasons import WireTrackState
 
 EPILOG = """examples:
   simpletrack track nuscenes --data ../shared/data/nuscenes/centerpoint_val --out out/nusc.jsonl
@@ -53,10 +54,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def state_name(state: int, time_since_update: int) -> str:
-    if state == TrackState.TENTATIVE:
-        return "tentative"
-    return "coasting" if time_since_update > 0 else "confirmed"
+STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
 
 
 def track_scene(path: Path, config: TrackerConfig) -> Iterator[dict[str, Any]]:
@@ -69,6 +67,7 @@ def track_scene(path: Path, config: TrackerConfig) -> Iterator[dict[str, Any]]:
         for code, tracker in enumerate(trackers):
             tracks = tracker.step(Frame(boxes=fr.boxes.take(fr.boxes.cls == code), stamp=fr.stamp))
             box = tracks.boxes.params
+            states = wire_states(tracks).tolist()
             for i in range(len(tracks)):
                 b = box[i]
                 yield {
@@ -80,7 +79,7 @@ def track_scene(path: Path, config: TrackerConfig) -> Iterator[dict[str, Any]]:
                     + [round(float(b[3]), 4)]
                     + [round(float(v), 2) for v in b[4:]],
                     "score": round(float(tracks.boxes.score[i]), 4),
-                    "state": state_name(int(tracks.state[i]), int(tracks.time_since_update[i])),
+                    "state": STATE_NAMES[states[i]],
                 }
 
 

@@ -13,6 +13,8 @@ Bool = npt.NDArray[np.bool_]
 
 # Column order of Boxes.params: centre, yaw, size (the Kalman filter's measured state).
 X, Y, Z, YAW, L, W, H = range(7)
+CENTER = slice(X, Z + 1)  # x, y, z
+SIZE = slice(L, H + 1)  # l, w, h
 
 
 @dataclass(frozen=True, slots=True)

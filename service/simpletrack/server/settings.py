@@ -30,22 +30,18 @@ from pydantic_settings import (
 )
 
 from simpletrack.core.config import PRESETS, ClassConfig, TrackerConfig, preset
+from simpletrack.session import DEFAULT_LISTEN as DEFAULT_LISTEN  # moved; still importable here
+from simpletrack.session import Congestion as Congestion  # moved; still importable here
 from simpletrack.session import ZenohOptions
 from simpletrack.wire.models import NAME_PATTERN
 
 ENV_PREFIX = "SIMPLETRACK_"
-DEFAULT_LISTEN = ("tcp/127.0.0.1:7447",)
 DOC_COMMAND = "python -m simpletrack.server.settings --write <this file>"
 
 
 class Backpressure(StrEnum):
     DROP_OLDEST = "drop_oldest"  # never block Zenoh: a full worker queue drops its oldest frame
     BLOCK = "block"  # lossless: a full queue stops intake; Zenoh pushes back to BLOCK publishers
-
-
-class Congestion(StrEnum):
-    BLOCK = "block"
-    DROP = "drop"
 
 
 class LogFormat(StrEnum):

@@ -1,0 +1,158 @@
+"""The one adapter between the wire's columns and the core's types, both ways.
+
+This is the only module of ``simpletrack.wire`` that imports ``simpletrack.core``: the rest of
+the wire (and the client library on top of it) stays free of the tracker and scipy. Importing
+it needs the service extra.
+
+The core keeps a box as one (N, 7) float64 row in its measured-state order (``CENTER``,
+``YAW``, ``SIZE`` of ``simpletrack.core.boxes``); the wire carries float32 ``center``, ``yaw``
+and ``size`` columns and float64 scores. Class codes index a table of names on both sides;
+-1 marks a class the caller ignores.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from simpletrack.core.boxes import CENTER, SIZE, YAW, Boxes
+from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.lifecycle import TrackState, UpdateKind
+from simpletrack.wire.columns import F32, F64, I32, BoxArrays, TrackArrays
+from simpletrack.wire.reasons import WireTrackState
+
+if TYPE_CHECKING:
+    from simpletrack.wire.codec import DecodedDetections
+
+# Re-exported so that light modules (the client) can name the core types in annotations
+# without importing the core themselves.
+__all__ = [
+    "Boxes",
+    "Tracks",
+    "boxes_from_wire",
+    "boxes_to_wire",
+    "frame_from_wire",
+    "track_boxes_from_wire",
+    "tracks_from_wire",
+    "tracks_to_wire",
+    "wire_states",
+]
+
+
+def _params(center: F32, yaw: F32, size: F32) -> F64:
+    params = np.empty((center.shape[0], 7), dtype=np.float64)
+    params[:, CENTER] = center
+    params[:, YAW] = yaw
+    params[:, SIZE] = size
+    return params
+
+
+def _kept(boxes: Boxes) -> Boxes:
+    keep = boxes.cls >= 0
+    return boxes if keep.all() else boxes.take(keep)
+
+
+# --- core -> wire -------------------------------------------------------------------------
+def boxes_to_wire(boxes: Boxes, classes: Sequence[str]) -> BoxArrays:
+    """Core ``Boxes`` (codes index ``classes``) as detection columns, in wire precision."""
+    if len(boxes) and int(boxes.cls.max()) >= len(classes):
+        raise ValueError(f"class code {int(boxes.cls.max())} has no name in {tuple(classes)}")
+    p = boxes.params
+    return BoxArrays(
+        classes=tuple(classes),
+        class_index=boxes.cls.astype(np.int32),
+        center=p[:, CENTER].astype(np.float32),
+        size=p[:, SIZE].astype(np.float32),
+        yaw=p[:, YAW].astype(np.float32),
+        score=boxes.score.astype(np.float64),
+        velocity=None if boxes.velocity is None else boxes.velocity.astype(np.float32),
+    )
+
+
+def wire_states(tracks: Tracks) -> I32:
+    """``WireTrackState`` codes: a confirmed track not updated on this frame is coasting."""
+    confirmed = tracks.state == TrackState.CONFIRMED
+    coasting_or_confirmed = np.where(
+        tracks.time_since_update > 0, WireTrackState.COASTING, WireTrackState.CONFIRMED
+    )
+    return np.where(confirmed, coasting_or_confirmed, WireTrackState.TENTATIVE).astype(np.int32)
+
+
+def tracks_to_wire(tracks: Tracks, id_base: int, classes: tuple[str, ...]) -> TrackArrays:
+    """A tracker's output as track columns; ids are offset by the sensor's ``id_base``."""
+    p = tracks.boxes.params
+    return TrackArrays(
+        classes=classes,
+        id=tracks.ids + np.int64(id_base),
+        class_index=tracks.boxes.cls.astype(np.int32),
+        center=p[:, CENTER].astype(np.float32),
+        size=p[:, SIZE].astype(np.float32),
+        yaw=p[:, YAW].astype(np.float32),
+        score=tracks.boxes.score.astype(np.float64),
+        velocity=tracks.velocity.astype(np.float32),
+        state=wire_states(tracks),
+        hits=tracks.hits.astype(np.int32),
+        age=tracks.age.astype(np.int32),
+        time_since_update=tracks.time_since_update.astype(np.int32),
+    )
+
+
+# --- wire -> core -------------------------------------------------------------------------
+def boxes_from_wire(arrays: BoxArrays, codes: I32 | None = None) -> Boxes:
+    """Detection columns as float64 core ``Boxes``. ``codes`` (default: the frame's own
+    ``class_index``) are the boxes' class codes in the tracker's table; boxes coded -1
+    (ignored classes) are left out."""
+    boxes = Boxes.from_arrays(
+        _params(arrays.center, arrays.yaw, arrays.size),
+        arrays.score,
+        arrays.class_index if codes is None else codes,
+        arrays.velocity,
+    )
+    return _kept(boxes)
+
+
+def frame_from_wire(decoded: DecodedDetections, stamp: float) -> tuple[Frame, int]:
+    """The tracker's frame of a decoded detection frame (``stamp`` in seconds) and how many
+    boxes of ignored classes were left out."""
+    boxes = boxes_from_wire(decoded.boxes, decoded.codes)
+    frame = Frame(boxes=boxes, stamp=stamp, pose=decoded.pose, key_frame=decoded.frame.key_frame)
+    return frame, len(decoded.boxes) - len(boxes)
+
+
+def track_boxes_from_wire(tracks: TrackArrays, classes: Sequence[str] | None = None) -> Boxes:
+    """Track columns as core ``Boxes`` (float64, planar velocity); codes index ``classes``
+    (default: the frame's own table). Tracks of classes missing from ``classes`` are left out."""
+    codes = tracks.class_index.astype(np.int32)
+    if classes is not None:
+        remap = [classes.index(c) if c in classes else -1 for c in tracks.classes]
+        codes = np.array(remap, dtype=np.int32)[codes]
+    boxes = Boxes.from_arrays(
+        _params(tracks.center, tracks.yaw, tracks.size),
+        tracks.score,
+        codes,
+        tracks.velocity[:, :2],
+    )
+    return _kept(boxes)
+
+
+def tracks_from_wire(tracks: TrackArrays) -> Tracks:
+    """Track columns as the core's ``Tracks``, ids as sent. Coasting reads back as confirmed."""
+    state = np.where(
+        tracks.state == WireTrackState.TENTATIVE, TrackState.TENTATIVE, TrackState.CONFIRMED
+    )
+    # The wire does not say how a track was updated; "not updated this frame" is what matters.
+    update = np.where(tracks.time_since_update == 0, UpdateKind.MATCHED, UpdateKind.COASTED)
+    return Tracks(
+        ids=tracks.id.astype(np.int64),
+        boxes=Boxes.from_arrays(
+            _params(tracks.center, tracks.yaw, tracks.size), tracks.score, tracks.class_index
+        ),
+        velocity=tracks.velocity.astype(np.float64),
+        state=state.astype(np.int8),
+        update=update.astype(np.int8),
+        hits=tracks.hits.astype(np.int32),
+        age=tracks.age.astype(np.int32),
+        time_since_update=tracks.time_since_update.astype(np.int32),
+    )

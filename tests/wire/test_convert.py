@@ -1,0 +1,239 @@
+"""The wire <-> core adapter: the column layout, round trips in float32, track-state codes,
+ignored classes, and the exact columns the service puts on the wire for a fixed input."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pytest
+
+from simpletrack.core.boxes import Boxes
+from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.lifecycle import TrackState, UpdateKind
+from simpletrack.wire import (
+    BoxArrays,
+    DecodedDetections,
+    TrackArrays,
+    WireTrackState,
+    decode_detection_frame,
+    encode_detection_frame,
+)
+from simpletrack.wire.convert import (
+    boxes_from_wire,
+    boxes_to_wire,
+    frame_from_wire,
+    track_boxes_from_wire,
+    tracks_from_wire,
+    tracks_to_wire,
+    wire_states,
+)
+
+CLASSES = ("Car", "Pedestrian")
+F32, F64, I32, I64 = np.float32, np.float64, np.int32, np.int64
+
+
+def assert_identical(got: Any, want: Any) -> None:
+    """Same fields, and every array with the same dtype, shape and bytes."""
+    assert type(got) is type(want)
+    for f in dataclasses.fields(want):
+        g, w = getattr(got, f.name), getattr(want, f.name)
+        if isinstance(w, np.ndarray):
+            assert isinstance(g, np.ndarray), f.name
+            assert (g.dtype, g.shape) == (w.dtype, w.shape), f.name
+            assert g.tobytes() == w.tobytes(), f"{f.name}: {g} != {w}"
+        elif dataclasses.is_dataclass(w):
+            assert_identical(g, w)
+        else:
+            assert g == w, f.name
+
+
+def random_boxes(n: int, velocity: bool) -> Boxes:
+    rng = np.random.default_rng(n)
+    params = np.column_stack(
+        [rng.normal(0, 30, (n, 3)), rng.uniform(-np.pi, np.pi, n), rng.uniform(0.5, 5, (n, 3))]
+    )
+    return Boxes.from_arrays(
+        params,
+        rng.uniform(0, 1, n),
+        rng.integers(0, len(CLASSES), n),
+        rng.normal(0, 5, (n, 2)) if velocity else None,
+    )
+
+
+# --- the fixed inputs and what the service puts on the wire for them -------------------------
+def three_tracks() -> Tracks:
+    """One tentative, one confirmed and updated, one confirmed but coasting."""
+    return Tracks(
+        ids=np.array([0, 1, 2], I64),
+        boxes=Boxes.from_arrays(
+            [
+                [1, 2, 3, 0.5, 4, 5, 6],
+                [-1, -2, 0.25, -1.5, 0.75, 0.5, 1.75],
+                [10, 0, 0, 3, 4, 2, 1.5],
+            ],
+            [0.9, 0.125, 0.3],
+            [0, 1, 0],
+        ),
+        velocity=np.array([[1, 0, 0], [0, -0.5, 0], [2.5, 1, 0.125]], F64),
+        state=np.array([TrackState.TENTATIVE, TrackState.CONFIRMED, TrackState.CONFIRMED], np.int8),
+        update=np.array([UpdateKind.MATCHED, UpdateKind.MATCHED, UpdateKind.COASTED], np.int8),
+        hits=np.array([1, 5, 7], I32),
+        age=np.array([1, 6, 9], I32),
+        time_since_update=np.array([0, 0, 2], I32),
+    )
+
+
+RECORDED_TRACKS = TrackArrays(
+    classes=CLASSES,
+    id=np.array([100, 101, 102], I64),
+    class_index=np.array([0, 1, 0], I32),
+    center=np.array([[1, 2, 3], [-1, -2, 0.25], [10, 0, 0]], F32),
+    size=np.array([[4, 5, 6], [0.75, 0.5, 1.75], [4, 2, 1.5]], F32),
+    yaw=np.array([0.5, -1.5, 3], F32),
+    score=np.array([0.9, 0.125, 0.3], F64),
+    velocity=np.array([[1, 0, 0], [0, -0.5, 0], [2.5, 1, 0.125]], F32),
+    state=np.array([0, 1, 2], I32),  # tentative, confirmed, coasting
+    hits=np.array([1, 5, 7], I32),
+    age=np.array([1, 6, 9], I32),
+    time_since_update=np.array([0, 0, 2], I32),
+)
+
+POSE = np.array([[1, 0, 0, 5], [0, 1, 0, -2], [0, 0, 1, 0.5], [0, 0, 0, 1]], F64)
+
+
+def three_detections() -> DecodedDetections:
+    """A car, a van the tracker ignores (code -1) and a pedestrian, decoded as the service does."""
+    arrays = BoxArrays(
+        classes=("Car", "Van", "Pedestrian"),
+        class_index=np.array([0, 1, 2], I32),
+        center=np.array([[1, 2, 3], [7, 7, 7], [-1, -2, 0.25]], F32),
+        size=np.array([[4, 5, 6], [3, 3, 3], [0.75, 0.5, 1.75]], F32),
+        yaw=np.array([0.5, 1, -1.5], F32),
+        score=np.array([0.9, 0.8, 0.125], F64),
+        velocity=np.array([[1, 0], [2, 2], [0, -0.5]], F32),
+    )
+    payload = encode_detection_frame(
+        vehicle="v", sensor="s", seq=3, stamp_ns=10**9, frame_id="lidar", boxes=arrays,
+        pose=POSE, key_frame=False,
+    )  # fmt: skip
+    decoded = decode_detection_frame(payload, class_codes={"Car": 0, "Van": -1, "Pedestrian": 1})
+    assert isinstance(decoded, DecodedDetections), decoded
+    return decoded
+
+
+RECORDED_FRAME = Frame(
+    boxes=Boxes(
+        params=np.array([[1, 2, 3, 0.5, 4, 5, 6], [-1, -2, 0.25, -1.5, 0.75, 0.5, 1.75]], F64),
+        score=np.array([0.9, 0.125], F64),
+        cls=np.array([0, 1], I32),
+        velocity=np.array([[1, 0], [0, -0.5]], F64),
+    ),
+    stamp=2.5,
+    pose=POSE,
+    key_frame=False,
+)
+
+
+def test_tracks_to_wire_gives_the_recorded_columns() -> None:
+    assert_identical(tracks_to_wire(three_tracks(), 100, CLASSES), RECORDED_TRACKS)
+
+
+def test_frame_from_wire_gives_the_recorded_frame_and_counts_the_ignored_box() -> None:
+    frame, ignored = frame_from_wire(three_detections(), 2.5)
+    assert ignored == 1
+    assert_identical(frame, RECORDED_FRAME)
+
+
+# The service's own copies, until pool.py calls the adapter; then delete these two tests.
+def test_the_servers_tracks_to_wire_gives_the_same_columns() -> None:
+    from simpletrack.server.pool import tracks_to_wire as server_tracks_to_wire
+
+    assert_identical(server_tracks_to_wire(three_tracks(), 100, CLASSES), RECORDED_TRACKS)
+
+
+def test_the_servers_detections_to_frame_gives_the_same_frame() -> None:
+    from simpletrack.server.pool import detections_to_frame
+
+    frame, ignored = detections_to_frame(three_detections(), 2.5)
+    assert ignored == 1
+    assert_identical(frame, RECORDED_FRAME)
+
+
+# --- layout and round trips ---------------------------------------------------------------
+def test_boxes_to_wire_splits_the_core_row_into_centre_yaw_and_size() -> None:
+    boxes = Boxes.from_arrays([[1, 2, 3, 0.5, 4, 5, 6]], [0.75], [1], [[7, 8]])
+    w = boxes_to_wire(boxes, CLASSES)
+    assert w.classes == CLASSES
+    assert w.center.tolist() == [[1, 2, 3]] and w.center.dtype == F32
+    assert w.yaw.tolist() == [0.5] and w.yaw.dtype == F32
+    assert w.size.tolist() == [[4, 5, 6]] and w.size.dtype == F32
+    assert w.score.tolist() == [0.75] and w.score.dtype == F64
+    assert w.class_index.tolist() == [1] and w.class_index.dtype == I32
+    assert w.velocity is not None and w.velocity.tolist() == [[7, 8]]
+
+
+@pytest.mark.parametrize("velocity", [False, True])
+def test_boxes_survive_the_wire_within_float32(velocity: bool) -> None:
+    boxes = random_boxes(50, velocity)
+    back = boxes_from_wire(boxes_to_wire(boxes, CLASSES))
+    np.testing.assert_array_equal(back.params, boxes.params.astype(F32).astype(F64))
+    np.testing.assert_allclose(back.params, boxes.params, rtol=1e-6, atol=1e-5)
+    np.testing.assert_array_equal(back.score, boxes.score)  # scores stay float64
+    np.testing.assert_array_equal(back.cls, boxes.cls)
+    if velocity:
+        assert boxes.velocity is not None and back.velocity is not None
+        np.testing.assert_allclose(back.velocity, boxes.velocity, rtol=1e-6, atol=1e-5)
+    else:
+        assert back.velocity is None
+
+
+def test_empty_boxes_survive_the_wire() -> None:
+    back = boxes_from_wire(boxes_to_wire(Boxes.empty(), CLASSES))
+    assert len(back) == 0 and back.params.shape == (0, 7)
+
+
+def test_a_class_code_without_a_name_is_refused() -> None:
+    with pytest.raises(ValueError, match="class code 2"):
+        boxes_to_wire(Boxes.from_arrays(np.ones((1, 7)), [0.5], [2]), CLASSES)
+
+
+def test_boxes_of_ignored_classes_are_dropped() -> None:
+    w = boxes_to_wire(random_boxes(4, velocity=True), CLASSES)
+    kept = boxes_from_wire(w, codes=np.array([-1, 0, -1, 1], I32))
+    assert kept.cls.tolist() == [0, 1]
+    np.testing.assert_array_equal(kept.params[:, 0], w.center[[1, 3], 0].astype(F64))
+    assert kept.velocity is not None and kept.velocity.shape == (2, 2)
+
+
+def test_wire_states_codes_tentative_confirmed_and_coasting() -> None:
+    states = wire_states(three_tracks())
+    assert states.dtype == I32
+    assert states.tolist() == [
+        WireTrackState.TENTATIVE,
+        WireTrackState.CONFIRMED,
+        WireTrackState.COASTING,
+    ]
+
+
+def test_tracks_come_back_from_the_wire_with_coasting_read_as_confirmed() -> None:
+    tracks = three_tracks()
+    back = tracks_from_wire(tracks_to_wire(tracks, 0, CLASSES))
+    np.testing.assert_array_equal(back.ids, tracks.ids)
+    np.testing.assert_array_equal(back.boxes.params, tracks.boxes.params)  # exact in float32
+    np.testing.assert_array_equal(back.boxes.cls, tracks.boxes.cls)
+    np.testing.assert_array_equal(back.velocity, tracks.velocity)
+    assert back.state.tolist() == [TrackState.TENTATIVE, TrackState.CONFIRMED, TrackState.CONFIRMED]
+    assert back.update.tolist() == [UpdateKind.MATCHED, UpdateKind.MATCHED, UpdateKind.COASTED]
+    assert back.time_since_update.tolist() == [0, 0, 2]
+
+
+def test_track_boxes_use_the_callers_class_table_and_drop_the_rest() -> None:
+    w = tracks_to_wire(three_tracks(), 0, CLASSES)
+    own = track_boxes_from_wire(w)
+    assert own.cls.tolist() == [0, 1, 0]
+    assert own.velocity is not None and own.velocity.tolist() == [[1, 0], [0, -0.5], [2.5, 1]]
+    peds = track_boxes_from_wire(w, classes=("Cyclist", "Pedestrian"))
+    assert peds.cls.tolist() == [1]
+    assert peds.params.tolist() == [[-1, -2, 0.25, -1.5, 0.75, 0.5, 1.75]]
