@@ -164,13 +164,13 @@ def test_load_generator_payload_is_the_codec_s_bytes() -> None:
 def test_profile_summary_ranks_functions(tmp_path: Path) -> None:
     raw = tmp_path / "p.txt"
     raw.write_text(
-        'process 1:"python";thread (0x1);run (service/simpletrack/server/pool.py:150);step (core/tracker.py:60) 30\n'
-        'process 1:"python";thread (0x1);run (service/simpletrack/server/pool.py:150);decode (schemas/simpletrack/wire/codec.py:9) 10\n'
+        'process 1:"python";thread (0x1);run (service/simpletrack/server/worker.py:150);step (core/tracker.py:60) 30\n'
+        'process 1:"python";thread (0x1);run (service/simpletrack/server/worker.py:150);decode (schemas/simpletrack/wire/codec.py:9) 10\n'
     )
     prof = summarize_profile(raw)
     assert prof["samples"] == 40
     assert prof["self"][0] == ("step (tracker.py)", 0.75)
-    assert dict(prof["inclusive"])["run (pool.py)"] == 1.0
+    assert dict(prof["inclusive"])["run (worker.py)"] == 1.0
     assert prof["roles"] == [("other", 1.0)]
 
 

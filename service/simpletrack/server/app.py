@@ -23,13 +23,15 @@ from simpletrack.core.tracker import Tracker
 from simpletrack.server.intake import Inbound, Intake, WorkQueue, depth, worker_index
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
-from simpletrack.server.pool import MSGPACK, NAME_RE, Context, SensorBudget, Worker, peek_header
+from simpletrack.server.outbox import MSGPACK, dropped, frame_error, put
+from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all
+from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import open_session
 from simpletrack.wire.codec import DecodeLimits, encode
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.models import FrameError, ServiceStatus
+from simpletrack.wire.models import ServiceStatus
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
 log = get_logger("service")
@@ -87,7 +89,7 @@ class Service:
         if s.state_dir is not None:
             for snap in read_all(s.state_dir):
                 key = self.keys.detections(snap.vehicle, snap.sensor)
-                self._workers[worker_index(key, s.workers)].adopt(snap)
+                self._workers[worker_index(key, s.workers)].sensors.adopt(snap)
         self._metrics_functions()
         for w in self._workers:
             w.start()
@@ -126,7 +128,7 @@ class Service:
         else:
             workers = self._workers
             m.snapshot_age.set_function(
-                lambda: time.monotonic() - min(w.snapshot_done_at for w in workers)
+                lambda: time.monotonic() - min(w.sensors.snapshot_done_at for w in workers)
             )
 
     def ready(self) -> bool:
@@ -144,24 +146,15 @@ class Service:
         self.metrics.count_error(reason, vehicle)
         if reason is ErrorReason.DROPPED_SHUTDOWN and self._session is not None:
             if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
-                seq, stamp_ns = peek_header(item.payload)
-                err = FrameError(
-                    schema_version=SCHEMA_VERSION,
-                    vehicle=vehicle,
-                    sensor=sensor,
-                    seq=seq,
-                    stamp_ns=stamp_ns,
-                    reason=reason,
-                    detail="service shutting down",
-                    instance=self.settings.instance,
-                    received_ns=item.received_ns,
-                )
+                r = dropped(reason, item.payload)
+                err = frame_error(vehicle, sensor, r, self.settings.instance, item.received_ns)
                 with contextlib.suppress(zenoh.ZError):
-                    self._session.put(
+                    # DROP whatever the setting: a Zenoh callback must never block.
+                    put(
+                        self._session,
                         self.keys.errors(vehicle, sensor),
                         encode(err),
-                        encoding=MSGPACK,
-                        congestion_control=zenoh.CongestionControl.DROP,
+                        zenoh.CongestionControl.DROP,
                     )
             log.warning("frame_dropped", vehicle=vehicle, sensor=sensor, reason=reason.value)
 
@@ -176,7 +169,7 @@ class Service:
             started_ns=self.started_ns,
             ready=self.ready(),
             queue_depth=depth(self._queues),
-            sensors=[st for w in self._workers for st in w.status()],
+            sensors=[st for w in self._workers for st in w.sensors.status()],
         )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
@@ -206,10 +199,10 @@ class Service:
 
         def answer(worker: Worker) -> None:
             try:
-                for v, s in worker.sensor_names():
+                for v, s in worker.sensors.names():
                     key = self.keys.snapshot(instance, v, s)
                     if zenoh.KeyExpr(key).intersects(asked):
-                        snap = worker.snapshot_of(v, s)
+                        snap = worker.sensors.snapshot_of(v, s)
                         if snap is not None:
                             query.reply(key, encode(snap), encoding=MSGPACK)
             except zenoh.ZError as e:

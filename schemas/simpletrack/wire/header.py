@@ -1,0 +1,37 @@
+"""``seq`` and ``stamp_ns`` of a detection frame without validating it, for the notices of
+frames the service sheds under load (it must not pay a full decode exactly then).
+
+Same answer as the full decoder's on every payload: a valid frame gives its values; a damaged
+one gives them when its msgpack map could still be read and they are in range, else None.
+That is why the payload is still parsed as a whole (msgpack's C parser; the box columns stay
+raw bytes: no models, no arrays): any broken string or key anywhere makes the decoder read
+nothing, and skipping values unread would answer where it does not.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+
+# The decoder's default byte cap, which drop notices have always been read with.
+MAX_BYTES = 8 << 20
+_INT64_END = 2**63
+
+
+def _int64(obj: dict[Any, Any], key: str) -> int | None:
+    v = obj.get(key)
+    return v if type(v) is int and 0 <= v < _INT64_END else None
+
+
+def peek_header(payload: bytes) -> tuple[int | None, int | None]:
+    """(seq, stamp_ns) of a payload, each None when it cannot be read. Never raises."""
+    if len(payload) > MAX_BYTES:
+        return None, None
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception:  # garbage of any kind: nothing to report
+        return None, None
+    if not isinstance(obj, dict):
+        return None, None
+    return _int64(obj, "seq"), _int64(obj, "stamp_ns")

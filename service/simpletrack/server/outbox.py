@@ -1,0 +1,132 @@
+"""What the service puts on a sensor's keys: its track frames and its ``FrameError`` notices.
+The one builder of a ``FrameError`` lives here, for the workers and for the shutdown path."""
+
+from __future__ import annotations
+
+import contextlib
+
+import zenoh
+
+from simpletrack.server.logs import get_logger
+from simpletrack.server.settings import Congestion
+from simpletrack.wire.codec import Rejection
+from simpletrack.wire.codec import encode as encode_message
+from simpletrack.wire.header import peek_header
+from simpletrack.wire.keys import Keys
+from simpletrack.wire.models import FrameError
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+# The frame lines have always come from this logger (docs/SERVICE.md shows simpletrack.pool).
+log = get_logger("pool")
+MSGPACK = zenoh.Encoding("application/msgpack")
+
+DROP_DETAILS = {
+    ErrorReason.DROPPED_QUEUE_FULL: "worker queue full (backpressure drop_oldest)",
+    ErrorReason.DROPPED_SHUTDOWN: "service shutting down",
+}
+
+
+def congestion_control(setting: Congestion) -> zenoh.CongestionControl:
+    if setting is Congestion.BLOCK:
+        return zenoh.CongestionControl.BLOCK
+    return zenoh.CongestionControl.DROP
+
+
+def dropped(reason: ErrorReason, payload: bytes) -> Rejection:
+    """The refusal of a frame shed under load: only its header is read."""
+    seq, stamp_ns = peek_header(payload)
+    return Rejection(reason, None, DROP_DETAILS.get(reason, reason.value), seq, stamp_ns)
+
+
+def frame_error(
+    vehicle: str, sensor: str, r: Rejection, instance: str, received_ns: int
+) -> FrameError:
+    return FrameError(
+        schema_version=SCHEMA_VERSION,
+        vehicle=vehicle,
+        sensor=sensor,
+        seq=r.seq,
+        stamp_ns=r.stamp_ns,
+        reason=r.reason,
+        field=None if r.field is None else r.field[:256],
+        detail=r.detail[:1024],
+        instance=instance,
+        received_ns=received_ns,
+    )
+
+
+def put(
+    session: zenoh.Session, key: str, payload: bytes, congestion: zenoh.CongestionControl
+) -> None:
+    session.put(key, payload, encoding=MSGPACK, congestion_control=congestion)
+
+
+class Outbox:
+    """One worker's publishers, declared on a sensor's first frame and kept until the sensor
+    is forgotten. Only the worker's own thread uses it."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        congestion: zenoh.CongestionControl,
+        instance: str,
+    ) -> None:
+        self.session, self.keys, self.congestion, self.instance = (
+            session,
+            keys,
+            congestion,
+            instance,
+        )
+        self._tracks: dict[tuple[str, str], zenoh.Publisher] = {}
+        self._errors: dict[tuple[str, str], zenoh.Publisher] = {}
+
+    def _publisher(
+        self, table: dict[tuple[str, str], zenoh.Publisher], key: str, name: tuple[str, str]
+    ) -> zenoh.Publisher:
+        pub = table.get(name)
+        if pub is None:
+            pub = table[name] = self.session.declare_publisher(
+                key, encoding=MSGPACK, congestion_control=self.congestion
+            )
+        return pub
+
+    def tracks(self, vehicle: str, sensor: str, payload: bytes) -> None:
+        key = self.keys.tracks(vehicle, sensor)
+        self._publisher(self._tracks, key, (vehicle, sensor)).put(payload)
+
+    def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int, held: bool) -> None:
+        """Publish and log a refusal. ``held``: the sensor is one the worker holds (it gets a
+        declared publisher); a sensor that never got in is told by a one-off put."""
+        payload = encode_message(frame_error(vehicle, sensor, r, self.instance, received_ns))
+        key = self.keys.errors(vehicle, sensor)
+        try:
+            if held:
+                self._publisher(self._errors, key, (vehicle, sensor)).put(payload)
+            else:
+                put(self.session, key, payload, self.congestion)
+        except zenoh.ZError as e:
+            log.error(
+                "error_publish_failed", vehicle=vehicle, sensor=sensor, seq=r.seq, error=str(e)
+            )
+        log.warning(
+            "frame_dropped" if r.reason.value.startswith("dropped") else "frame_rejected",
+            vehicle=vehicle,
+            sensor=sensor,
+            seq=r.seq,
+            reason=r.reason.value,
+            field=r.field,
+            detail=r.detail,
+        )
+
+    def forget(self, vehicle: str, sensor: str) -> None:
+        """Undeclare a sensor's publishers (evicted, or the worker is stopping)."""
+        for table in (self._tracks, self._errors):
+            pub = table.pop((vehicle, sensor), None)
+            if pub is not None:
+                with contextlib.suppress(zenoh.ZError):  # session already closed
+                    pub.undeclare()  # type: ignore[no-untyped-call]
+
+    def close(self) -> None:
+        for name in list(self._tracks.keys() | self._errors.keys()):
+            self.forget(*name)

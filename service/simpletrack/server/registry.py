@@ -1,0 +1,185 @@
+"""The sensors one worker holds: admission under the global budget, restore from snapshots,
+eviction of idle sensors (their ids stay reserved), and the snapshots written to disk.
+
+Mutated only on the worker's thread; ``status`` and ``names`` may be read from any thread.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from simpletrack.core.tracker import Tracker
+from simpletrack.server.logs import get_logger
+from simpletrack.server.metrics import Metrics
+from simpletrack.server.sensors import SensorBudget, SensorState
+from simpletrack.server.snapshots import Batch, SnapshotWriter, snapshot_path
+from simpletrack.wire.codec import encode as encode_message
+from simpletrack.wire.models import SensorSnapshot, SensorStatus
+
+log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
+MAX_RETIRED = 100_000  # id reservations of evicted sensors kept in memory
+
+
+class SensorRegistry:
+    def __init__(
+        self,
+        budget: SensorBudget,
+        metrics: Metrics,
+        new_tracker: Callable[[], Tracker],
+        digest: str,
+        writer: SnapshotWriter | None,
+        state_dir: Path | None,
+    ) -> None:
+        self.budget, self.metrics, self.new_tracker, self.digest = (
+            budget,
+            metrics,
+            new_tracker,
+            digest,
+        )
+        self.writer, self.state_dir = writer, state_dir
+        self.sensors: dict[str, SensorState] = {}
+        self.retired: dict[str, int] = {}  # evicted sensor -> lowest unused id
+        self.snapshot_done_at = time.monotonic()
+
+    def __len__(self) -> int:
+        return len(self.sensors)
+
+    def get(self, key: str) -> SensorState | None:
+        return self.sensors.get(key)
+
+    # ------------------------------------------------------------------ admission
+    def add(self, vehicle: str, sensor: str, seq: int) -> SensorState | None:
+        """A new sensor, or None when the budget is spent. Its ids continue above any it
+        published before an eviction."""
+        if not self.budget.acquire():
+            return None
+        key = f"{vehicle}/{sensor}"
+        state = SensorState(vehicle, sensor, self.new_tracker(), id_base=self.retired.pop(key, 0))
+        self.sensors[key] = state
+        self.metrics.active_sensors.inc()
+        log.info("sensor_added", vehicle=vehicle, sensor=sensor, seq=seq, id_base=state.id_base)
+        return state
+
+    def adopt(self, snap: SensorSnapshot) -> None:
+        """Take over a sensor from the state directory (before the worker starts)."""
+        key = f"{snap.vehicle}/{snap.sensor}"
+        if snap.tracker is None:
+            self.retired[key] = snap.id_next
+            return
+        tracker: Tracker | None = None
+        id_base = snap.id_base
+        if snap.config_digest != self.digest:
+            log.warning("snapshot_config_changed", vehicle=snap.vehicle, sensor=snap.sensor)
+        else:
+            try:
+                tracker = Tracker.from_bytes(snap.tracker)
+            except Exception:
+                log.error(
+                    "snapshot_tracker_unreadable",
+                    exc=True,
+                    vehicle=snap.vehicle,
+                    sensor=snap.sensor,
+                )
+        if tracker is None:  # start afresh, but never reuse an id
+            tracker, id_base = self.new_tracker(), snap.id_next
+        if not self.budget.acquire():
+            log.error("snapshot_over_max_sensors", vehicle=snap.vehicle, sensor=snap.sensor)
+            self.retired[key] = snap.id_next
+            return
+        self.sensors[key] = SensorState(
+            vehicle=snap.vehicle,
+            sensor=snap.sensor,
+            tracker=tracker,
+            id_base=id_base,
+            last_seq=snap.last_seq,
+            last_stamp_ns=snap.last_stamp_ns,
+            stamp_origin_ns=snap.stamp_origin_ns,
+            frames=snap.frames,
+            dirty=False,
+        )
+        self.metrics.restored.inc()
+        self.metrics.active_sensors.inc()
+        log.info(
+            "sensor_restored",
+            vehicle=snap.vehicle,
+            sensor=snap.sensor,
+            seq=snap.last_seq,
+            id_next=snap.id_next,
+        )
+
+    # ------------------------------------------------------------------ eviction
+    def evict_idle(self, now: float, idle_s: float) -> list[SensorState]:
+        """Drop the sensors silent for over ``idle_s``; their id reservation is written."""
+        gone = [(k, s) for k, s in list(self.sensors.items()) if now - s.last_seen > idle_s]
+        for key, s in gone:
+            self._evict(key, s)
+        return [s for _, s in gone]
+
+    def _evict(self, key: str, s: SensorState) -> None:
+        del self.sensors[key]
+        self.retired[key] = s.id_next
+        while len(self.retired) > MAX_RETIRED:
+            del self.retired[next(iter(self.retired))]
+        self.budget.release()
+        m = self.metrics
+        m.evicted.inc()
+        m.active_sensors.dec()
+        m.active_tracks.dec(s.active_tracks)
+        log.info(
+            "sensor_evicted", vehicle=s.vehicle, sensor=s.sensor, seq=s.last_seq, id_next=s.id_next
+        )
+        self._write([(s, False)])
+
+    # ------------------------------------------------------------------ snapshots
+    def snapshot_dirty(self) -> None:
+        """Snapshot every sensor changed since its last snapshot."""
+        dirty = [s for s in self.sensors.values() if s.dirty]
+        if dirty:
+            self._write([(s, True) for s in dirty])
+        else:
+            self.snapshot_done_at = time.monotonic()
+
+    def _write(self, items: list[tuple[SensorState, bool]]) -> None:
+        if self.writer is None or self.state_dir is None:
+            return
+        files = []
+        for s, with_tracker in items:
+            snap = s.snapshot(self.digest, with_tracker)
+            files.append((snapshot_path(self.state_dir, s.vehicle, s.sensor), encode_message(snap)))
+            s.dirty = False
+        metrics = self.metrics
+
+        def done(written: int, failed: int) -> None:
+            metrics.snapshots.inc(written)
+            if failed:
+                metrics.snapshot_failures.inc(failed)
+            else:
+                self.snapshot_done_at = time.monotonic()
+
+        self.writer.submit(Batch(files, done))
+
+    def snapshot_of(self, vehicle: str, sensor: str) -> SensorSnapshot | None:
+        """Only from the worker's thread (it owns the trackers): via ``queue.put_control``."""
+        s = self.sensors.get(f"{vehicle}/{sensor}")
+        return None if s is None else s.snapshot(self.digest)
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> list[SensorStatus]:
+        now = time.monotonic()
+        return [
+            SensorStatus(
+                vehicle=s.vehicle,
+                sensor=s.sensor,
+                last_seq=s.last_seq,
+                last_stamp_ns=s.last_stamp_ns,
+                frames=s.frames,
+                active_tracks=s.active_tracks,
+                idle_s=round(now - s.last_seen, 3),
+            )
+            for s in list(self.sensors.values())
+        ]
+
+    def names(self) -> list[tuple[str, str]]:
+        return [(s.vehicle, s.sensor) for s in list(self.sensors.values())]
