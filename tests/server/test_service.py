@@ -271,7 +271,7 @@ def test_kitti_sequence_through_zenoh_equals_the_offline_core(cli: Client) -> No
     from simpletrack.core.config import preset
     from simpletrack.core.frames import Frame
     from simpletrack.datasets.kitti import KITTI_CLASSES, load_sequence
-    from simpletrack.server.conversions import tracks_to_wire
+    from simpletrack.wire.convert import tracks_to_wire
 
     config = preset("kitti")
     frames = load_sequence(KITTI, SEQ, config, KITTI_CLASSES)

@@ -147,21 +147,6 @@ def test_frame_from_wire_gives_the_recorded_frame_and_counts_the_ignored_box() -
 
 
 # The service's own copies, until pool.py calls the adapter; then delete these two tests.
-def test_the_servers_tracks_to_wire_gives_the_same_columns() -> None:
-    from simpletrack.server.pool import tracks_to_wire as server_tracks_to_wire
-
-    assert_identical(server_tracks_to_wire(three_tracks(), 100, CLASSES), RECORDED_TRACKS)
-
-
-def test_the_servers_detections_to_frame_gives_the_same_frame() -> None:
-    from simpletrack.server.pool import detections_to_frame
-
-    frame, ignored = detections_to_frame(three_detections(), 2.5)
-    assert ignored == 1
-    assert_identical(frame, RECORDED_FRAME)
-
-
-# --- layout and round trips ---------------------------------------------------------------
 def test_boxes_to_wire_splits_the_core_row_into_centre_yaw_and_size() -> None:
     boxes = Boxes.from_arrays([[1, 2, 3, 0.5, 4, 5, 6]], [0.75], [1], [[7, 8]])
     w = boxes_to_wire(boxes, CLASSES)

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 import zenoh
 
 from simpletrack.core.tracker import Tracker
-from simpletrack.server.conversions import detections_to_frame, tracks_to_wire
 from simpletrack.server.intake import Dropped, Inbound, WorkQueue
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
@@ -35,6 +34,7 @@ from simpletrack.wire.codec import (
     decode_detection_frame,
     encode_track_frame,
 )
+from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN
 from simpletrack.wire.reasons import ErrorReason
@@ -162,7 +162,7 @@ class Worker(threading.Thread):
 
         stamp = state.tracker_stamp(stamp_ns)
         state.last_seen = time.monotonic()
-        tframe, ignored = detections_to_frame(decoded, stamp)
+        tframe, ignored = frame_from_wire(decoded, stamp)
         if ignored:
             m.boxes_ignored.inc(ignored)
         try:
