@@ -88,9 +88,8 @@ class StageTimer:
 
     def __init__(self, targets: Sequence[tuple[str, str, str]] | None = None) -> None:
         self._spec = targets
-        stages = dict.fromkeys(
-            t.stage for t in resolve_targets(targets)
-        )  # fails here, before timing
+        # Resolved now so that a missing target fails before anything is timed.
+        stages = dict.fromkeys(t.stage for t in resolve_targets(targets))
         self.seconds: dict[str, float] = dict.fromkeys(stages, 0.0)
         self.calls: dict[str, int] = dict.fromkeys(stages, 0)
         self._installed: list[_Target] = []
