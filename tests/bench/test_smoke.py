@@ -15,7 +15,7 @@ import pytest
 from simpletrack.bench import loadgen
 from simpletrack.bench.core import synthetic_stream
 from simpletrack.bench.service import summarize_profile
-from simpletrack.bench.stages import STAGES, StageTimer
+from simpletrack.bench.stages import STAGES, TARGETS, MissingStageTarget, StageTimer
 from simpletrack.cli.main import main
 from simpletrack.core.config import preset
 from simpletrack.core.tracker import Tracker
@@ -71,12 +71,45 @@ def test_stage_shims_reach_every_stage_the_tracker_uses() -> None:
     assert timer.calls["predict"] == len(frames)
     # From the second frame on there are tracks to match and correct.
     for stage in ("cost_matrix", "assignment", "update", "lifecycle"):
-        assert timer.calls[stage] >= len(frames) - 1, (stage, timer.calls, timer.missing)
+        assert timer.calls[stage] >= len(frames) - 1, (stage, timer.calls)
     assert set(timer.seconds) == set(STAGES)
     # Removed on exit: the tracker runs unshimmed again.
     from simpletrack.core import tracker as tracker_module
 
     assert not hasattr(tracker_module.nms, "__wrapped__")
+
+
+@pytest.mark.parametrize(
+    ("target", "needle"),
+    [
+        (("cost_matrix", "simpletrack.core.tracker", "Tracker._pair_distances"), "does not exist"),
+        (("nms", "simpletrack.core.nowhere", "nms"), "no module simpletrack.core.nowhere"),
+        (("update", "simpletrack.core.config", "PRESETS"), "not a plain function"),
+    ],
+)
+def test_a_stage_whose_target_is_missing_fails_naming_stage_and_target(
+    target: tuple[str, str, str], needle: str
+) -> None:
+    with pytest.raises(MissingStageTarget) as info:
+        StageTimer((*TARGETS, target))
+    assert f"stage {target[0]!r}" in str(info.value) and needle in str(info.value)
+    assert target[2].split(".")[-1] in str(info.value) or target[1] in str(info.value)
+
+
+def test_bench_core_fails_before_timing_when_a_stage_target_is_gone(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from simpletrack.bench import stages
+
+    gone = ("cost_matrix", "simpletrack.core.tracker", "Tracker._pair_distances")
+    monkeypatch.setattr(stages, "TARGETS", (*stages.TARGETS, gone))
+    out = tmp_path / "core.json"
+    argv = ["bench", "core", "--scenes", "0", "--kitti-sequences", "0", "--sizes", "5"]
+    with pytest.raises(
+        MissingStageTarget, match=r"stage 'cost_matrix': .*Tracker\._pair_distances"
+    ):
+        main([*argv, "--sweep-frames", "3", "--json", str(out)])
+    assert not out.exists()
 
 
 def test_stage_shims_do_not_change_the_output() -> None:

@@ -25,6 +25,7 @@ from tests.service_helpers import (
     DATA,
     Client,
     ServiceProcess,
+    client,
     metric,
     moving_cars,
     stamp,
@@ -309,6 +310,46 @@ def test_kitti_sequence_through_zenoh_equals_the_offline_core(cli: Client) -> No
             np.testing.assert_array_equal(getattr(g, name), getattr(e, name), err_msg=f"{k} {name}")
 
 
+def test_status_reports_the_default_preset_s_config(cli: Client) -> None:
+    from simpletrack.core.config import preset
+    from simpletrack.server.settings import config_digest
+
+    [raw] = cli.get("fleet/@simpletrack/svc-test/status")
+    status = decode_message(raw, ServiceStatus)
+    assert not isinstance(status, Rejection), status
+    assert status.config_digest == config_digest(preset("kitti"))
+
+
+def test_tracker_options_from_flags_and_environment_reach_the_running_tracker(
+    tmp_path: Path,
+) -> None:
+    from simpletrack.core.config import MotionModel, OutputPolicy, preset
+    from simpletrack.server.settings import config_digest
+
+    svc = start_service(
+        tmp_path,
+        "--preset",
+        "wod",
+        "--motion",
+        "constant_velocity",
+        "--output",
+        "paper",
+        env={"SIMPLETRACK_TRACKER__COAST_SCORE_DECAY": "0.5"},
+        instance="svc-options",
+    )
+    try:
+        with client(svc.endpoint) as c:
+            [raw] = c.get("fleet/@simpletrack/svc-options/status")
+    finally:
+        assert svc.stop() == 0
+    status = decode_message(raw, ServiceStatus)
+    assert not isinstance(status, Rejection), status
+    want = preset("wod").with_overrides(
+        motion=MotionModel.CONSTANT_VELOCITY, output=OutputPolicy.PAPER, coast_score_decay=0.5
+    )
+    assert (status.preset, status.config_digest) == ("wod", config_digest(want))
+
+
 def test_serve_help_lists_the_flags() -> None:
     import subprocess
     import sys
@@ -321,6 +362,14 @@ def test_serve_help_lists_the_flags() -> None:
         check=True,
     ).stdout
     for flag in ("--mode", "--listen", "--connect", "--metrics-port", "--state-dir", "--config"):
+        assert flag in out
+    for flag in (
+        "--motion",
+        "--output",
+        "--vertical-overlap",
+        "--tie-order",
+        "--coast-score-decay",
+    ):
         assert flag in out
 
 

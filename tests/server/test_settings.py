@@ -8,9 +8,20 @@ import socket
 from pathlib import Path
 
 import pytest
+from pydantic import BaseModel
 
-from simpletrack.cli.main import main
+from simpletrack.cli.main import build_parser, main
+from simpletrack.cli.serve import settings_from_args
+from simpletrack.core.config import (
+    PRESETS,
+    MotionModel,
+    OutputPolicy,
+    TieOrder,
+    TrackerConfig,
+    preset,
+)
 from simpletrack.server.settings import Backpressure, load_settings, refresh_docs
+from simpletrack.server.tracker_settings import TrackerOptions
 from simpletrack.session import ZenohMode, ZenohOptions
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -67,19 +78,113 @@ def test_zenoh_config_has_scouting_off_and_explicit_endpoints() -> None:
     assert json.loads(config.get_json("mode")) == "peer"
 
 
-def test_class_overrides_file(tmp_path: Path) -> None:
+def test_class_overrides_file_is_applied_when_the_settings_load(tmp_path: Path) -> None:
     good = tmp_path / "o.toml"
     good.write_text("[Car]\nscore_high = 0.6\nmax_age = 4\n")
     cfg = load_settings(None, {"class_overrides": good}).tracker_config()
     assert cfg.classes["Car"].score_high == 0.6 and cfg.classes["Car"].max_age == 4
     assert cfg.classes["Pedestrian"].score_high == 0.5
-    bad = tmp_path / "b.toml"
-    bad.write_text("[Tram]\nmax_age = 4\n")
-    with pytest.raises(ValueError, match="class 'Tram' is not in preset 'kitti'"):
-        load_settings(None, {"class_overrides": bad}).tracker_config()
-    bad.write_text("[Car]\nmax_age = -1\n")
-    with pytest.raises(ValueError, match="max_age"):
-        load_settings(None, {"class_overrides": bad}).tracker_config()
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[Tram]\nmax_age = 4\n", "class 'Tram' is not in preset 'kitti'"),
+        (
+            "[Car]\nmax_age = -1\n",
+            "Car: max_age: Input should be greater than or equal to 1 (got -1)",
+        ),
+        ("[Car]\nscore_low = 0.9\n", "Car: score_low (0.9) must not exceed score_high (0.55)"),
+        ("Car = 3\n", "Car must be a table of fields (got 3)"),
+        ("[Car\n", "line 1"),  # not TOML
+    ],
+)
+def test_a_bad_class_overrides_file_fails_load_settings_naming_file_class_and_value(
+    tmp_path: Path, text: str, needle: str
+) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(ValueError) as info:
+        load_settings(None, {"class_overrides": bad})
+    assert str(info.value).startswith(f"{bad}") and needle in str(info.value)
+    with pytest.raises(ValueError, match="cannot read"):
+        load_settings(None, {"class_overrides": tmp_path / "missing.toml"})
+
+
+def _fields(model: type[BaseModel]) -> dict[str, object]:
+    """Field names, nested models as dicts of their own."""
+    out: dict[str, object] = {}
+    for name, info in model.model_fields.items():
+        kind = info.annotation
+        nested = isinstance(kind, type) and issubclass(kind, BaseModel)
+        out[name] = _fields(kind) if nested else None  # type: ignore[arg-type]
+    return out
+
+
+def test_every_top_level_tracker_option_is_a_service_setting() -> None:
+    want = _fields(TrackerConfig)
+    del want["classes"]  # the preset's, changed by class_overrides
+    assert _fields(TrackerOptions) == want
+
+
+def test_tracker_options_from_file_env_and_flags_over_the_preset(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    nuscenes = preset("nuscenes")
+    # Options left out keep the preset's values, not TrackerConfig's defaults.
+    assert load_settings(None, {"preset": "nuscenes"}).tracker_config() == nuscenes
+    cfg = tmp_path / "s.toml"
+    cfg.write_text(
+        'preset = "nuscenes"\n[tracker]\noutput = "paper"\ncoast_score_decay = 0.3\n'
+        "[tracker.kalman]\nq = 2.0\n[tracker.non_key]\nscore_high = 0.4\n"
+    )
+    monkeypatch.setenv("SIMPLETRACK_TRACKER__MOTION", "constant_velocity")
+    monkeypatch.setenv("SIMPLETRACK_TRACKER__COAST_SCORE_DECAY", "0.2")
+    args = build_parser().parse_args(
+        ["serve", "--config", str(cfg), "--tie-order", "reference", "--coast-score-decay", "0.1"]
+    )
+    got = settings_from_args(args).tracker_config()
+    assert got == nuscenes.with_overrides(
+        output=OutputPolicy.PAPER,
+        motion=MotionModel.CONSTANT_VELOCITY,
+        tie_order=TieOrder.REFERENCE,
+        coast_score_decay=0.1,  # flag over environment over file
+        kalman=nuscenes.kalman.model_copy(update={"q": 2.0}),
+        non_key=nuscenes.non_key.model_copy(update={"score_high": 0.4}),
+    )
+
+
+@pytest.mark.parametrize(
+    ("overrides", "needle"),
+    [
+        ({"tracker": {"coast_score_decay": 2}}, "tracker.coast_score_decay: Input should be"),
+        ({"tracker": {"motion": "bicycle"}}, "tracker.motion: Input should be"),
+        ({"tracker": {"kalman": {"q": -1}}}, "tracker.kalman.q: Input should be greater than 0"),
+        ({"tracker": {"classes": {}}}, "tracker.classes: Extra inputs are not permitted"),
+        ({"ignore_classes": ["Car"]}, "ignore_classes: 'Car' is a tracked class"),
+    ],
+)
+def test_settings_that_cannot_make_a_tracker_fail_to_load(
+    overrides: dict[str, object], needle: str
+) -> None:
+    with pytest.raises(ValueError) as info:
+        load_settings(None, overrides)
+    assert needle in str(info.value)
+
+
+def test_preset_names_everywhere_come_from_the_core_registry(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(ValueError) as info:
+        load_settings(None, {"preset": "carla"})
+    assert f"choose one of {', '.join(PRESETS)}" in str(info.value)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["serve", "--preset", "carla"])
+    assert ", ".join(f"'{name}'" for name in PRESETS) in capsys.readouterr().err
+    docs = (ROOT / "docs/SERVICE.md").read_text()
+    assert " \\| ".join(PRESETS) in docs
+    for name in PRESETS:
+        assert f"| `{name}` | " + ", ".join(f"`{c}`" for c in preset(name).class_names) in docs
 
 
 def test_serve_user_errors_are_one_line_and_exit_2(
@@ -108,7 +213,12 @@ def test_serve_user_errors_are_one_line_and_exit_2(
 def test_docs_tables_are_generated_from_the_code(doc: str) -> None:
     text = (ROOT / doc).read_text()
     assert refresh_docs(text) == text, f"run: python -m simpletrack.server.settings --write {doc}"
-    for name in ("backpressure", "snapshot_interval_s", "SIMPLETRACK_ZENOH__MODE"):
+    for name in (
+        "backpressure",
+        "snapshot_interval_s",
+        "SIMPLETRACK_ZENOH__MODE",
+        "tracker.motion",
+    ):
         assert name in text
     for name in ("simpletrack_frames_rejected_total", "simpletrack_end_to_end_seconds"):
         assert name in text

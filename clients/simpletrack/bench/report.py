@@ -53,9 +53,6 @@ def core_tables(doc: dict[str, Any]) -> str:
             for name, r in loads.items()
         ]
         out += ["share of the step", table(["load", *cols], rows), ""]
-        missing = sorted({m for r in loads.values() for m in r["stages"]["missing_targets"]})
-        if missing:
-            out += ["stage shims not installed (the core changed): " + ", ".join(missing), ""]
     ref = doc["reference"]
     rows = []
     for name in ("nuscenes", "nuscenes_parity"):

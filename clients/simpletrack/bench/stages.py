@@ -6,28 +6,28 @@
     timer.seconds["cost_matrix"], timer.calls["assignment"]
 
 Each shim replaces a module or class attribute that the tracker looks up at call time
-(``simpletrack.core.tracker.nms``, ``simpletrack.core.geometry.distance_matrix``, ...). Time is
-exclusive: a shimmed function called inside another is charged to itself only. A target the
-core no longer has is listed in ``missing`` rather than failing, so a refactor of the core
-shows up as an empty stage, never as a broken benchmark.
+(``simpletrack.core.tracker.nms``, ``simpletrack.core.geometry.distance_pairs``, ...). Time is
+exclusive: a shimmed function called inside another is charged to itself only. Every target is
+resolved to the function it names when a ``StageTimer`` is made; one the core no longer has
+(renamed, removed, made a staticmethod) is a ``MissingStageTarget`` naming the stage and the
+target, so a refactor of the core fails the benchmark instead of moving its cost to "other".
 """
 
 from __future__ import annotations
 
 import importlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from types import TracebackType
+from types import FunctionType, TracebackType
 from typing import Any
 
 # (stage, module, attribute path inside the module). Order = the order a frame goes through.
 TARGETS: tuple[tuple[str, str, str], ...] = (
     ("nms", "simpletrack.core.tracker", "nms"),
     ("predict", "simpletrack.core.tracker", "Tracker._predict"),
-    ("cost_matrix", "simpletrack.core.geometry", "distance_matrix"),
+    ("cost_matrix", "simpletrack.core.tracker", "Tracker._distance_table"),
     ("cost_matrix", "simpletrack.core.geometry", "distance_pairs"),
-    ("cost_matrix", "simpletrack.core.tracker", "Tracker._pair_distances"),
     ("assignment", "simpletrack.core.tracker", "assign"),
     ("update", "simpletrack.core.motion", "KalmanFilter.update"),
     ("update", "simpletrack.core.motion", "ConstantVelocity.update"),
@@ -39,26 +39,61 @@ STAGES: tuple[str, ...] = tuple(dict.fromkeys(stage for stage, _, _ in TARGETS))
 OTHER = "other"  # step time outside every shimmed function: glue, copies, masks
 
 
-@dataclass
-class _Patch:
-    owner: Any
+class MissingStageTarget(LookupError):
+    """A stage names a function the core does not have (any more)."""
+
+
+@dataclass(frozen=True)
+class _Target:
+    stage: str
+    owner: Any  # the module or class whose attribute is replaced
     name: str
-    original: Any
+    original: Callable[..., Any]
+
+
+def resolve_targets(targets: Sequence[tuple[str, str, str]] | None = None) -> tuple[_Target, ...]:
+    """The functions ``targets`` (default: TARGETS) name, or MissingStageTarget for the first
+    that is not one."""
+    out = []
+    for stage, module_name, path in TARGETS if targets is None else targets:
+        where = f"{module_name}.{path}"
+        try:
+            owner: Any = importlib.import_module(module_name)
+        except ImportError:
+            raise MissingStageTarget(
+                f"stage {stage!r}: no module {module_name} (update {__name__} TARGETS)"
+            ) from None
+        *parents, name = path.split(".")
+        try:
+            for part in parents:
+                owner = getattr(owner, part)
+            original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
+        except (AttributeError, KeyError):
+            raise MissingStageTarget(
+                f"stage {stage!r}: {where} does not exist (renamed or removed? "
+                f"update {__name__} TARGETS)"
+            ) from None
+        # A shim over a staticmethod or a builtin would change how it is called or time nothing.
+        if not isinstance(original, FunctionType):
+            raise MissingStageTarget(
+                f"stage {stage!r}: {where} is not a plain function "
+                f"({type(original).__name__}; update {__name__} TARGETS)"
+            )
+        out.append(_Target(stage, owner, name, original))
+    return tuple(out)
 
 
 class StageTimer:
     """Context manager that times the tracker's stages while it is active."""
 
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = dict.fromkeys(STAGES, 0.0)
-        self.calls: dict[str, int] = dict.fromkeys(STAGES, 0)
-        self.missing: list[str] = []
-        self._patches: list[_Patch] = []
+    def __init__(self, targets: Sequence[tuple[str, str, str]] | None = None) -> None:
+        self._spec = targets
+        # Resolved now so that a missing target fails before anything is timed.
+        stages = dict.fromkeys(t.stage for t in resolve_targets(targets))
+        self.seconds: dict[str, float] = dict.fromkeys(stages, 0.0)
+        self.calls: dict[str, int] = dict.fromkeys(stages, 0)
+        self._installed: list[_Target] = []
         self._child = [0]  # ns spent in nested shims, per open level
-
-    def reset(self) -> None:
-        self.seconds = dict.fromkeys(STAGES, 0.0)
-        self.calls = dict.fromkeys(STAGES, 0)
 
     def _shim(self, stage: str, fn: Callable[..., Any]) -> Callable[..., Any]:
         child = self._child
@@ -80,21 +115,10 @@ class StageTimer:
         return timed
 
     def __enter__(self) -> StageTimer:
-        for stage, module_name, path in TARGETS:
-            owner: Any = importlib.import_module(module_name)
-            *parents, name = path.split(".")
-            try:
-                for part in parents:
-                    owner = getattr(owner, part)
-                original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
-            except (AttributeError, KeyError):
-                self.missing.append(f"{module_name}.{path}")
-                continue
-            if isinstance(original, staticmethod | classmethod):
-                self.missing.append(f"{module_name}.{path} (not a plain function)")
-                continue
-            setattr(owner, name, self._shim(stage, original))
-            self._patches.append(_Patch(owner, name, original))
+        # Resolved again: what the attributes hold now is what __exit__ must put back.
+        for t in resolve_targets(self._spec):
+            setattr(t.owner, t.name, self._shim(t.stage, t.original))
+            self._installed.append(t)
         return self
 
     def __exit__(
@@ -103,6 +127,6 @@ class StageTimer:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        for p in reversed(self._patches):
-            setattr(p.owner, p.name, p.original)
-        self._patches.clear()
+        for t in reversed(self._installed):
+            setattr(t.owner, t.name, t.original)
+        self._installed.clear()

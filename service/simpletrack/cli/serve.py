@@ -4,14 +4,28 @@ from __future__ import annotations
 
 import argparse
 import sys
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
 from simpletrack.cli.errors import UserError
+from simpletrack.core.config import (
+    PRESETS,
+    MotionModel,
+    OutputPolicy,
+    TieOrder,
+    VerticalOverlap,
+)
 from simpletrack.server import logs
-from simpletrack.server.settings import load_settings
+from simpletrack.server.settings import (
+    Backpressure,
+    LogFormat,
+    LogLevel,
+    ServiceSettings,
+    load_settings,
+)
 from simpletrack.session import add_zenoh_args, zenoh_overrides
 
 EPILOG = """\
@@ -49,15 +63,25 @@ def register(subparsers: Any) -> None:
     p.add_argument("--state-dir", type=Path, metavar="DIR", help="snapshot directory")
     p.add_argument("--prefix", metavar="PREFIX", help="first key chunk(s) (default fleet)")
     p.add_argument("--instance", metavar="ID", help="instance id (default from hostname)")
-    p.add_argument("--preset", choices=["kitti", "wod", "nuscenes"], help="tracker preset")
+    p.add_argument("--preset", choices=list(PRESETS), help="tracker preset")
     p.add_argument("--class-overrides", type=Path, metavar="FILE", help="per-class overrides")
-    p.add_argument("--workers", type=int, metavar="N", help="tracker threads")
-    p.add_argument(
-        "--backpressure", choices=["drop_oldest", "block"], help="what a full queue does"
+    tracker = p.add_argument_group("tracker options over the preset's (tracker.* settings)")
+    tracker.add_argument("--motion", choices=_values(MotionModel), help="motion model")
+    tracker.add_argument("--output", choices=_values(OutputPolicy), help="output policy")
+    tracker.add_argument("--vertical-overlap", choices=_values(VerticalOverlap))
+    tracker.add_argument("--tie-order", choices=_values(TieOrder), help="NMS tie order")
+    tracker.add_argument(
+        "--coast-score-decay", type=float, metavar="X", help="coasting score factor per frame"
     )
-    p.add_argument("--log-level", choices=["debug", "info", "warning", "error"])
-    p.add_argument("--log-format", choices=["json", "kv"])
+    p.add_argument("--workers", type=int, metavar="N", help="tracker threads")
+    p.add_argument("--backpressure", choices=_values(Backpressure), help="what a full queue does")
+    p.add_argument("--log-level", choices=_values(LogLevel))
+    p.add_argument("--log-format", choices=_values(LogFormat))
     p.set_defaults(func=run)
+
+
+def _values(enum: type[StrEnum]) -> list[str]:
+    return [m.value for m in enum]
 
 
 _FLAGS = (
@@ -72,20 +96,28 @@ _FLAGS = (
     "log_level",
     "log_format",
 )
+_TRACKER_FLAGS = ("motion", "output", "vertical_overlap", "tie_order", "coast_score_decay")
 
 
-def run(args: argparse.Namespace) -> int:
+def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
+    """The settings the flags, the ``--config`` file and the environment give."""
     overrides: dict[str, Any] = {
         k: getattr(args, k) for k in _FLAGS if getattr(args, k) is not None
     }
     if z := zenoh_overrides(args):
         overrides["zenoh"] = z
+    if t := {k: getattr(args, k) for k in _TRACKER_FLAGS if getattr(args, k) is not None}:
+        overrides["tracker"] = t
     if args.config is not None and not args.config.is_file():
         raise UserError(f"--config {args.config}: no such file")
     try:
-        settings = load_settings(args.config, overrides)
+        return load_settings(args.config, overrides)
     except ValueError as e:
         raise UserError(str(e)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
     logs.configure(settings.log_format, settings.log_level)
     zenoh.init_log_from_env_or("error")
     # The tracker's many short numpy calls hold the GIL between them; at Python's default 5 ms
@@ -97,8 +129,6 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         return app.run(settings)
-    except ValueError as e:  # bad tracker overrides, ignore_classes
-        raise UserError(str(e)) from None
     except OSError as e:  # metrics port taken, state dir not writable
         raise UserError(
             f"{e.strerror or e}: {getattr(e, 'filename', '') or ''}".rstrip(": ")

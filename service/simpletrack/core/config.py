@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import StrEnum
 from typing import Annotated, Any
 
@@ -203,12 +204,22 @@ def _kitti() -> TrackerConfig:
     )
 
 
-PRESETS = {"wod": _wod, "nuscenes": _nuscenes, "kitti": _kitti}
+# The one preset registry: every list of preset names (the serve command's choices, the
+# service settings' validation, the docs tables) is read from it.
+PRESETS: dict[str, Callable[[], TrackerConfig]] = {
+    "kitti": _kitti,
+    "wod": _wod,
+    "nuscenes": _nuscenes,
+}
+
+
+def known_preset(name: str) -> str:
+    """``name`` if a preset has it, else ValueError listing the presets."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return name
 
 
 def preset(name: str) -> TrackerConfig:
     """A named preset: ``wod`` and ``nuscenes`` as the paper's appendix, ``kitti`` tuned."""
-    try:
-        return PRESETS[name]()
-    except KeyError:
-        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}") from None
+    return PRESETS[known_preset(name)]()

@@ -9,7 +9,6 @@ callers pass the stacked means (T, 10) and covariances (T, 10, 10). The arithmet
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
 from simpletrack.core.boxes import F64, YAW
 from simpletrack.core.config import KalmanConfig
@@ -135,7 +134,3 @@ class ConstantVelocity:
         if velocity is not None:
             x[:, 7:9] = velocity
         return x
-
-
-def as_f64(a: npt.ArrayLike) -> F64:
-    return np.asarray(a, dtype=np.float64)

@@ -43,10 +43,8 @@ class Service:
         self.keys = Keys(settings.prefix)
         self.config = settings.tracker_config()
         self.class_codes = {name: code for code, name in enumerate(self.config.class_names)}
-        for name in settings.ignore_classes:
-            if name in self.class_codes:
-                raise ValueError(f"ignore_classes: {name!r} is a tracked class of this preset")
-            self.class_codes[name] = -1
+        # Settings refuse an ignored class that the preset tracks, so this cannot shadow one.
+        self.class_codes.update(dict.fromkeys(settings.ignore_classes, -1))
         self.metrics = Metrics(settings.metrics_vehicle_label, settings.metrics_max_vehicles)
         self.stop_requested = threading.Event()
         self.started_ns = time.time_ns()

@@ -8,7 +8,7 @@ import contextlib
 import zenoh
 
 from simpletrack.server.logs import get_logger
-from simpletrack.server.settings import Congestion
+from simpletrack.session import Congestion
 from simpletrack.wire.codec import Rejection
 from simpletrack.wire.codec import encode as encode_message
 from simpletrack.wire.header import peek_header

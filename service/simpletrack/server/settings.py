@@ -20,7 +20,14 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
 
 import yaml
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic.fields import FieldInfo
 from pydantic_settings import (
     BaseSettings,
@@ -29,10 +36,15 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
-from simpletrack.core.config import PRESETS, ClassConfig, TrackerConfig, preset
-from simpletrack.session import DEFAULT_LISTEN as DEFAULT_LISTEN  # moved; still importable here
-from simpletrack.session import Congestion as Congestion  # moved; still importable here
-from simpletrack.session import ZenohOptions
+from simpletrack.core.config import PRESETS, TrackerConfig, preset
+from simpletrack.server.messages import format_error
+from simpletrack.server.tracker_settings import (
+    OneOf,
+    PresetName,
+    TrackerOptions,
+    resolve_tracker_config,
+)
+from simpletrack.session import DEFAULT_LISTEN, Congestion, ZenohOptions
 from simpletrack.wire.models import NAME_PATTERN
 
 ENV_PREFIX = "SIMPLETRACK_"
@@ -61,7 +73,6 @@ def _default_instance() -> str:
     return f"simpletrack-{host}"
 
 
-PresetName = Literal["kitti", "wod", "nuscenes"]
 Seconds = Annotated[float, Field(gt=0.0)]
 _PREFIX = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}(/[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}){0,7}$"
 
@@ -92,6 +103,9 @@ class ServiceSettings(BaseSettings):
     )
     class_overrides: Path | None = Field(
         default=None, description="TOML/YAML file {class: {field: value}} over the preset's classes"
+    )
+    tracker: TrackerOptions = Field(
+        default_factory=TrackerOptions, description="tracker options over the preset's"
     )
     ignore_classes: list[str] = Field(
         default_factory=list,
@@ -199,28 +213,23 @@ class ServiceSettings(BaseSettings):
         file_values = _FILE_VALUES.get()
         return (init_settings, env_settings, InitSettingsSource(settings_cls, file_values))
 
+    # Resolved once, when the settings load: settings that load always make a tracker.
+    _tracker_config: TrackerConfig = PrivateAttr()
+
+    @model_validator(mode="after")
+    def _resolve_tracker(self) -> ServiceSettings:
+        source = self.class_overrides
+        changes = read_mapping(source) if source is not None else {}
+        config = resolve_tracker_config(self.preset, self.tracker, changes, str(source))
+        for name in self.ignore_classes:
+            if name in config.classes:
+                raise ValueError(f"ignore_classes: {name!r} is a tracked class of this preset")
+        self._tracker_config = config
+        return self
+
     def tracker_config(self) -> TrackerConfig:
-        """The preset with the per-class overrides applied (ValueError names the bad value)."""
-        config = preset(self.preset)
-        if self.class_overrides is None:
-            return config
-        overrides = read_mapping(self.class_overrides)
-        classes: dict[str, ClassConfig] = dict(config.classes)
-        for name, changes in overrides.items():
-            if name not in classes:
-                raise ValueError(
-                    f"{self.class_overrides}: class {name!r} is not in preset {self.preset!r} "
-                    f"({', '.join(classes)})"
-                )
-            if not isinstance(changes, Mapping):
-                raise ValueError(f"{self.class_overrides}: {name} must be a table of fields")
-            try:
-                classes[name] = ClassConfig.model_validate(
-                    {**classes[name].model_dump(), **changes}
-                )
-            except ValidationError as e:
-                raise ValueError(f"{self.class_overrides}: {name}: {format_error(e)}") from None
-        return config.with_overrides(classes=classes)
+        """The preset with the tracker options and per-class overrides applied."""
+        return self._tracker_config
 
 
 _FILE_VALUES: ContextVar[dict[str, Any]] = ContextVar("_FILE_VALUES", default={})  # noqa: B039
@@ -244,16 +253,6 @@ def read_mapping(path: Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping at the top level")
     return data
-
-
-def format_error(e: ValidationError) -> str:
-    """One line per problem: ``field: message (got value)``."""
-    parts = []
-    for err in e.errors(include_url=False):
-        loc = ".".join(str(p) for p in err["loc"]) or "settings"
-        got = f" (got {err['input']!r})" if err["type"] != "missing" else ""
-        parts.append(f"{loc}: {err['msg']}{got}")
-    return "; ".join(parts)
 
 
 def load_settings(
@@ -320,10 +319,11 @@ def _rows(model: type[BaseModel], path: str, env: str) -> Iterator[str]:
             yield from _rows(annotation, f"{key}.", f"{var}__")
             continue
         default = _DOC_DEFAULTS.get(key) or _default(info)
-        yield (
-            f"| `{key}` | `{var}` | {_type_name(annotation)} | {default} "
-            f"| {info.description or ''} |"
-        )
+        if key.startswith("tracker.") and default == "none":
+            default = "the preset's"
+        choices = next((m.values for m in info.metadata if isinstance(m, OneOf)), None)
+        kind = " \\| ".join(choices) if choices else _type_name(annotation)
+        yield (f"| `{key}` | `{var}` | {kind} | {default} | {info.description or ''} |")
 
 
 def reference_markdown() -> str:
@@ -335,10 +335,23 @@ def reference_markdown() -> str:
     return "\n".join(lines)
 
 
+def presets_markdown() -> str:
+    lines = ["| preset | classes (in code order) | output |", "|---|---|---|"]
+    for name in PRESETS:
+        config = preset(name)
+        classes = ", ".join(f"`{c}`" for c in config.class_names)
+        lines.append(f"| `{name}` | {classes} | `{config.output.value}` |")
+    return "\n".join(lines)
+
+
 def _generated_blocks() -> dict[str, str]:
     from simpletrack.server.metrics import reference_markdown as metrics_markdown
 
-    return {"settings": reference_markdown(), "metrics": metrics_markdown()}
+    return {
+        "settings": reference_markdown(),
+        "presets": presets_markdown(),
+        "metrics": metrics_markdown(),
+    }
 
 
 def _markers(name: str) -> tuple[str, str]:
@@ -346,7 +359,7 @@ def _markers(name: str) -> tuple[str, str]:
 
 
 def refresh_docs(text: str) -> str:
-    """``text`` with every generated block (settings, metrics) rewritten from the code."""
+    """``text`` with every generated block (settings, presets, metrics) rewritten from the code."""
     for name, body in _generated_blocks().items():
         begin, end = _markers(name)
         if begin not in text or end not in text:
@@ -368,8 +381,6 @@ def main(argv: list[str] | None = None) -> int:
     args.write.write_text(refresh_docs(args.write.read_text()))
     return 0
 
-
-assert set(PRESETS) == set(get_args(PresetName)), "PresetName must list simpletrack.core presets"
 
 if __name__ == "__main__":
     sys.exit(main())
