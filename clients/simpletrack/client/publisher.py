@@ -40,7 +40,7 @@ from simpletrack.wire import (
     encode_detection_frame,
 )
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.models import NAME_PATTERN
+from simpletrack.wire.messages import NAME_PATTERN
 
 log = logging.getLogger(__name__)
 

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import JsonValue
 
 from simpletrack.core.boxes import Boxes
 
@@ -33,8 +33,8 @@ class ColumnSpec:
     def row_bytes(self) -> int:
         return int(np.dtype(self.dtype).itemsize) * self.width
 
-    def json_schema_extra(self) -> dict[str, JsonValue]:
-        shape: list[JsonValue] = ["count"] if self.width == 1 else ["count", self.width]
+    def json_schema_extra(self) -> dict[str, Any]:  # JSON values, for the pydantic models
+        shape: list[str | int] = ["count"] if self.width == 1 else ["count", self.width]
         return {"x-dtype": self.dtype, "x-shape": shape}
 
 
