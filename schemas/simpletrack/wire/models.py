@@ -24,7 +24,7 @@ from simpletrack.wire.columns import (
     TrackArrays,
     to_column,
 )
-from simpletrack.wire.messages import NAME_PATTERN
+from simpletrack.wire.messages import NAME_PATTERN as NAME_PATTERN  # the server's import
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
 Name = Annotated[str, Field(pattern=NAME_PATTERN, description="letters, digits, _ . - (<= 64)")]
