@@ -133,9 +133,17 @@ def _loaded_after(statement: str) -> set[str]:
         ),
         (
             "import simpletrack.client",
-            {"scipy", "prometheus_client", "pydantic_settings", "simpletrack.core", "yaml"},
+            {
+                "scipy",
+                "prometheus_client",
+                "pydantic",
+                "pydantic_settings",
+                "simpletrack.core",
+                "yaml",
+            },
         ),
-        ("import simpletrack.wire", {"zenoh", "scipy", "simpletrack.core"}),
+        ("import simpletrack.wire", {"zenoh", "scipy", "pydantic", "simpletrack.core"}),
+        ("import simpletrack.session", {"pydantic", "scipy", "simpletrack.core"}),
     ],
 )
 def test_light_imports_stay_light(statement: str, absent: set[str]) -> None:

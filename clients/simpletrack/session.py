@@ -19,14 +19,16 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Any, cast
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 ZENOH_ENDPOINT_HELP = "e.g. tcp/127.0.0.1:7447 (see Zenoh endpoint syntax)"
+ENDPOINT_LENGTH = (3, 256)
 
 
 class ZenohMode(StrEnum):
@@ -34,66 +36,104 @@ class ZenohMode(StrEnum):
     CLIENT = "client"  # talks only through the router(s) given with --connect
 
 
-Endpoint = Annotated[str, Field(min_length=3, max_length=256)]
+# The rules, shared with the settings form of these options (simpletrack.server.settings).
 
 
-class ZenohOptions(BaseModel):
-    """How to open a Zenoh session."""
+def check_endpoints(endpoints: Iterable[str]) -> None:
+    for e in endpoints:
+        proto, sep, addr = e.partition("/")
+        if not sep or not proto or not addr:
+            raise ValueError(f"endpoint {e!r} must look like PROTO/ADDRESS, {ZENOH_ENDPOINT_HELP}")
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
 
-    mode: ZenohMode = Field(
-        default=ZenohMode.PEER, description="peer (embedded) or client of routers"
-    )
-    listen: list[Endpoint] = Field(
-        default_factory=list,
-        description="endpoints to listen on (peer mode only); never all interfaces by default",
-    )
-    connect: list[Endpoint] = Field(
-        default_factory=list, description="endpoints (peers or routers) to connect to"
-    )
-    multicast_scouting: bool = Field(default=False, description="discover peers by UDP multicast")
-    config_file: Path | None = Field(
-        default=None,
-        description="Zenoh JSON5 config file to start from (TLS, access control); options above override it where given",
-    )
-    connect_timeout_ms: int | None = Field(
-        default=None,
-        ge=-1,
-        description="how long to try the connect endpoints at start (-1: wait for the router forever)",
-    )
+def check_config_file(path: Path | None) -> None:
+    if path is not None and not path.is_file():
+        raise ValueError(f"zenoh config file {str(path)!r} does not exist")
 
-    @field_validator("listen", "connect")
-    @classmethod
-    def _endpoint_syntax(cls, v: list[str]) -> list[str]:
-        for e in v:
-            proto, sep, addr = e.partition("/")
-            if not sep or not proto or not addr:
-                raise ValueError(
-                    f"endpoint {e!r} must look like PROTO/ADDRESS, {ZENOH_ENDPOINT_HELP}"
-                )
-        return v
 
-    @field_validator("config_file")
-    @classmethod
-    def _file_exists(cls, v: Path | None) -> Path | None:
-        if v is not None and not v.is_file():
-            raise ValueError(f"zenoh config file {str(v)!r} does not exist")
-        return v
+def check_roles(
+    mode: ZenohMode,
+    listen: list[str],
+    connect: list[str],
+    multicast_scouting: bool,
+    config_file: Path | None,
+) -> None:
+    if config_file is not None:
+        return  # the file may name the routers
+    if mode is ZenohMode.CLIENT and not connect and not multicast_scouting:
+        raise ValueError("client mode needs at least one --connect endpoint (a router)")
+    if mode is ZenohMode.CLIENT and listen:
+        raise ValueError("client mode does not listen; drop --listen or use --mode peer")
 
-    @model_validator(mode="after")
-    def _client_needs_router(self) -> ZenohOptions:
-        if self.config_file is not None:
-            return self  # the file may name the routers
-        if self.mode is ZenohMode.CLIENT and not self.connect and not self.multicast_scouting:
-            raise ValueError("client mode needs at least one --connect endpoint (a router)")
-        if self.mode is ZenohMode.CLIENT and self.listen:
-            raise ValueError("client mode does not listen; drop --listen or use --mode peer")
-        return self
+
+_UNSET: Any = object()  # "not given": over a config file only given options are laid
+
+
+@dataclass(frozen=True, slots=True, init=False)
+class ZenohOptions:
+    """How to open a Zenoh session. Immutable; a bad value raises ValueError.
+
+    Defaults: peer mode, listen and connect nowhere, no multicast scouting, no config file,
+    Zenoh's own connect timeout. ``given`` names the options passed explicitly."""
+
+    mode: ZenohMode
+    listen: list[str]  # endpoints to listen on (peer mode only); never all interfaces
+    connect: list[str]  # endpoints (peers or routers) to connect to
+    multicast_scouting: bool
+    config_file: Path | None  # Zenoh JSON5 config to start from (TLS, access control)
+    connect_timeout_ms: int | None  # -1: a client waits for its router forever
+    given: frozenset[str] = field(init=False, compare=False, repr=False)
+
+    def __init__(
+        self,
+        *,
+        mode: ZenohMode | str = _UNSET,
+        listen: Iterable[str] = _UNSET,
+        connect: Iterable[str] = _UNSET,
+        multicast_scouting: bool = _UNSET,
+        config_file: Path | str | None = _UNSET,
+        connect_timeout_ms: int | None = _UNSET,
+    ) -> None:
+        args = {
+            "mode": mode,
+            "listen": listen,
+            "connect": connect,
+            "multicast_scouting": multicast_scouting,
+            "config_file": config_file,
+            "connect_timeout_ms": connect_timeout_ms,
+        }
+        given = frozenset(k for k, v in args.items() if v is not _UNSET)
+        mode = ZenohMode.PEER if mode is _UNSET else _mode(mode)
+        listen = [] if listen is _UNSET else _endpoints("listen", listen)
+        connect = [] if connect is _UNSET else _endpoints("connect", connect)
+        if multicast_scouting is _UNSET:
+            multicast_scouting = False
+        elif type(multicast_scouting) is not bool:
+            raise ValueError("multicast_scouting: Input should be a valid boolean")
+        path = None if config_file is _UNSET or config_file is None else Path(config_file)
+        check_config_file(path)
+        if connect_timeout_ms is _UNSET:
+            connect_timeout_ms = None
+        elif connect_timeout_ms is not None:
+            if type(connect_timeout_ms) is not int:
+                raise ValueError("connect_timeout_ms: Input should be a valid integer")
+            if connect_timeout_ms < -1:
+                raise ValueError("connect_timeout_ms: Input should be greater than or equal to -1")
+        check_roles(mode, listen, connect, multicast_scouting, path)
+        for name, value in (
+            ("mode", mode),
+            ("listen", listen),
+            ("connect", connect),
+            ("multicast_scouting", multicast_scouting),
+            ("config_file", path),
+            ("connect_timeout_ms", connect_timeout_ms),
+            ("given", given),
+        ):
+            object.__setattr__(self, name, value)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ZenohOptions:
-        """Options from the flags added by ``add_zenoh_args`` (raises pydantic ValidationError)."""
+        """Options from the flags added by ``add_zenoh_args`` (raises ValueError)."""
         return cls(
             mode=args.zenoh_mode or ZenohMode.PEER,
             listen=list(args.zenoh_listen or []),
@@ -105,8 +145,7 @@ class ZenohOptions(BaseModel):
         if self.config_file is not None:
             # The file is the base: only what was given explicitly is laid over it.
             config = zenoh.Config.from_file(str(self.config_file))
-            given = self.model_fields_set
-            if "mode" in given:
+            if "mode" in self.given:
                 config.insert_json5("mode", json.dumps(self.mode.value))
             if self.listen:
                 config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
@@ -121,6 +160,29 @@ class ZenohOptions(BaseModel):
         if self.connect_timeout_ms is not None:
             config.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
         return config
+
+
+def _mode(value: ZenohMode | str) -> ZenohMode:
+    try:
+        return ZenohMode(value)
+    except ValueError:
+        raise ValueError("mode: Input should be 'peer' or 'client'") from None
+
+
+def _endpoints(name: str, values: Iterable[str]) -> list[str]:
+    if isinstance(values, str | bytes) or not isinstance(values, Iterable):
+        raise ValueError(f"{name}: Input should be a valid list")
+    out = list(values)
+    lo, hi = ENDPOINT_LENGTH
+    for i, e in enumerate(out):
+        if not isinstance(e, str):
+            raise ValueError(f"{name}.{i}: Input should be a valid string")
+        if len(e) < lo:
+            raise ValueError(f"{name}.{i}: String should have at least {lo} characters")
+        if len(e) > hi:
+            raise ValueError(f"{name}.{i}: String should have at most {hi} characters")
+    check_endpoints(out)
+    return out
 
 
 def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
@@ -178,9 +240,10 @@ def open_session(options: ZenohOptions | None = None, **kwargs: object) -> zenoh
 
     ``open_session(mode="peer", connect=["tcp/127.0.0.1:7447"])`` also works."""
     if options is None:
-        options = ZenohOptions.model_validate(kwargs)
+        options = ZenohOptions(**kwargs)  # type: ignore[arg-type]
     elif kwargs:
-        options = ZenohOptions.model_validate({**options.model_dump(), **kwargs})
+        # Every option then counts as given (as the pydantic model did).
+        options = replace(options, **cast(dict[str, Any], kwargs))
     return zenoh.open(options.to_config())
 
 

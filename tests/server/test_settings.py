@@ -20,7 +20,7 @@ from simpletrack.core.config import (
     TrackerConfig,
     preset,
 )
-from simpletrack.server.settings import Backpressure, load_settings, refresh_docs
+from simpletrack.server.settings import Backpressure, ZenohSettings, load_settings, refresh_docs
 from simpletrack.server.tracker_settings import TrackerOptions
 from simpletrack.session import ZenohMode, ZenohOptions
 
@@ -76,6 +76,15 @@ def test_zenoh_config_has_scouting_off_and_explicit_endpoints() -> None:
     assert json.loads(config.get_json("scouting/multicast/enabled")) is False
     assert json.loads(config.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7000"]
     assert json.loads(config.get_json("mode")) == "peer"
+
+
+def test_zenoh_settings_mirror_the_session_options() -> None:
+    defaults = ZenohOptions()
+    assert set(ZenohSettings.model_fields) == {f for f in defaults.__slots__ if f != "given"}
+    built = ZenohSettings().options()
+    assert built == defaults and built.given == frozenset()
+    s = load_settings(None, {"zenoh": {"connect": ["tcp/10.0.0.3:7447"]}})
+    assert s.zenoh.options().given == {"connect", "listen"}  # listen: the loopback default
 
 
 def test_class_overrides_file_is_applied_when_the_settings_load(tmp_path: Path) -> None:

@@ -39,7 +39,7 @@ from simpletrack.wire import (
     encode_detection_frame,
 )
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.models import NAME_PATTERN
+from simpletrack.wire.messages import NAME_PATTERN
 
 if TYPE_CHECKING:
     from typing_extensions import TypeIs

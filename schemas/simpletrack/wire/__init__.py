@@ -1,4 +1,7 @@
-"""The wire contract of the SimpleTrack service (spec: schemas/README.md)."""
+"""The wire contract of the SimpleTrack service (spec: schemas/README.md).
+
+Light: numpy and msgpack only. The pydantic models (JSON Schemas, the server's replies) are
+in ``simpletrack.wire.models``, which nothing here imports."""
 
 from simpletrack.wire.codec import (
     DecodedDetections,
@@ -12,7 +15,7 @@ from simpletrack.wire.codec import (
     encode_track_frame,
 )
 from simpletrack.wire.columns import BoxArrays, TrackArrays
-from simpletrack.wire.models import (
+from simpletrack.wire.messages import (
     BoxColumns,
     DetectionFrame,
     FrameError,

@@ -4,34 +4,47 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
 import msgpack
 import numpy as np
 import numpy.typing as npt
-from pydantic import ValidationError
 
 from simpletrack.wire.columns import (
     DETECTION_COLUMNS,
+    DETECTION_SPECS,
     TRACK_COLUMNS,
     TRACK_SPECS,
     BoxArrays,
     ColumnSpec,
     TrackArrays,
     to_column,
-    view_column,
 )
-from simpletrack.wire.models import BoxColumns, DetectionFrame, TrackFrame, WireModel
+from simpletrack.wire.fields import Invalid, MapSpec
+from simpletrack.wire.messages import (
+    BOX_COLUMNS,
+    DETECTION_FRAME,
+    MESSAGE_TYPES,
+    SPECS,
+    TRACK_FRAME,
+    DetectionFrame,
+    Message,
+    TrackFrame,
+    to_map,
+)
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
-M = TypeVar("M", bound=WireModel)
+M = TypeVar("M")
+T = TypeVar("T")
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
 # Rotation part of a pose must be orthonormal to this tolerance (float32-sourced poses pass).
 POSE_TOLERANCE = 1e-4
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,13 +80,27 @@ class _Reject(Exception):
         self.reason, self.field, self.detail = reason, field, detail
 
 
+class _PydanticModel(Protocol):
+    """A model of ``simpletrack.wire.models`` (what the server builds its replies from)."""
+
+    def model_dump(self, *, mode: str = ...) -> dict[str, Any]: ...
+
+
 def pack(obj: Any) -> bytes:
     return bytes(msgpack.packb(obj, use_bin_type=True))
 
 
-def encode(model: WireModel) -> bytes:
-    """Any wire model as msgpack (bytes fields become ``bin``)."""
-    return pack(model.model_dump(mode="python"))
+def encode(message: Message | _PydanticModel) -> bytes:
+    """Any wire message (a ``simpletrack.wire`` message or its pydantic model) as msgpack;
+    bytes fields become ``bin``. A message the decoders would refuse raises ValueError."""
+    if not isinstance(message, MESSAGE_TYPES):
+        return pack(message.model_dump(mode="python"))
+    obj = to_map(message)
+    try:
+        SPECS[type(message).__name__](obj)
+    except Invalid as e:
+        raise ValueError(f"{type(message).__name__}.{e.field}: {e.detail}") from None
+    return pack(obj)
 
 
 # --- decoding -----------------------------------------------------------------------------
@@ -110,34 +137,38 @@ def _check_version(obj: dict[str, Any]) -> None:
         )
 
 
-_MISSING = {"missing"}
-_EXTRA = {"extra_forbidden"}
-
-
-def _pydantic_reject(err: ValidationError) -> _Reject:
-    first = err.errors(include_url=False)[0]
-    field = ".".join(str(p) for p in first["loc"]) or None
-    kind = first["type"]
-    if kind in _MISSING:
-        reason = ErrorReason.MISSING_FIELD
-    elif kind in _EXTRA:
-        reason = ErrorReason.EXTRA_FIELD
-    elif kind.endswith("_type") or kind in {"model_attributes_type", "literal_error"}:
-        reason = ErrorReason.WRONG_TYPE
-    else:
-        reason = ErrorReason.INVALID_VALUE
-    return _Reject(reason, field, str(first["msg"])[:200])
-
-
-def _validate(model: type[M], obj: dict[str, Any]) -> M:
+def _validate(spec: MapSpec[T], obj: dict[str, Any]) -> T:
     try:
-        return model.model_validate(obj)
-    except ValidationError as e:
-        raise _pydantic_reject(e) from None
+        return spec(obj)
+    except Invalid as e:
+        raise _Reject(e.reason, e.field, e.detail[:200]) from None
+
+
+@dataclass(frozen=True, slots=True)
+class _Column:
+    """A column spec with what decoding needs per frame worked out once."""
+
+    name: str
+    field: str  # dotted, for rejections
+    dtype: np.dtype[Any]
+    row_bytes: int
+    width: int
+    finite: bool
+
+
+def _plan(specs: tuple[ColumnSpec, ...], prefix: str) -> tuple[_Column, ...]:
+    return tuple(
+        _Column(s.name, f"{prefix}.{s.name}", np.dtype(s.dtype), s.row_bytes, s.width, s.finite)
+        for s in specs
+    )
+
+
+_DETECTION_PLAN = _plan(DETECTION_COLUMNS, "boxes")
+_TRACK_PLAN = _plan(TRACK_COLUMNS, "tracks")
 
 
 def _columns(
-    model: Any, specs: tuple[ColumnSpec, ...], prefix: str, max_rows: int
+    model: Any, plan: tuple[_Column, ...], prefix: str, max_rows: int
 ) -> dict[str, npt.NDArray[Any]]:
     count = int(model.count)
     if count > max_rows:
@@ -145,38 +176,48 @@ def _columns(
             ErrorReason.TOO_LARGE, f"{prefix}.count", f"{count} rows exceeds the cap of {max_rows}"
         )
     out: dict[str, npt.NDArray[Any]] = {}
-    for spec in specs:
-        buf = getattr(model, spec.name)
+    for c in plan:
+        buf = getattr(model, c.name)
         if buf is None:
             continue
-        field = f"{prefix}.{spec.name}"
-        if len(buf) != count * spec.row_bytes:
+        if len(buf) != count * c.row_bytes:
             raise _Reject(
                 ErrorReason.COLUMN_LENGTH,
-                field,
-                f"{len(buf)} bytes, expected count {count} x {spec.row_bytes} bytes",
+                c.field,
+                f"{len(buf)} bytes, expected count {count} x {c.row_bytes} bytes",
             )
-        arr = view_column(buf, spec)
-        if spec.finite:
-            bad = ~np.isfinite(arr)
-            if bad.any():
-                row = int(np.argwhere(bad)[0][0])
-                raise _Reject(ErrorReason.NON_FINITE, field, f"NaN or inf in row {row}")
-        out[spec.name] = arr
+        arr = np.frombuffer(buf, dtype=c.dtype)  # what view_column does, minus its lookups
+        if c.width > 1:
+            arr = arr.reshape(-1, c.width)
+        if c.finite and not np.isfinite(arr).all():
+            row = int(np.argwhere(~np.isfinite(arr))[0][0])
+            raise _Reject(ErrorReason.NON_FINITE, c.field, f"NaN or inf in row {row}")
+        out[c.name] = arr
     return out
 
 
+def _det3(p: list[float]) -> float:
+    """Determinant of the rotation part of a row-major 4x4 (only its sign is used)."""
+    return (
+        p[0] * (p[5] * p[10] - p[6] * p[9])
+        - p[1] * (p[4] * p[10] - p[6] * p[8])
+        + p[2] * (p[4] * p[9] - p[5] * p[8])
+    )
+
+
 def _pose(frame: DetectionFrame) -> F64 | None:
-    pose = frame.pose_matrix()
-    if pose is None:
+    # Scalar checks on the 16 Python floats where numpy's per-call cost would dominate.
+    p = frame.pose
+    if p is None:
         return None
-    if not np.isfinite(pose).all():
+    if not all(map(math.isfinite, p)):
         raise _Reject(ErrorReason.NON_FINITE, "pose", "NaN or inf in the pose")
+    pose = np.array(p, np.float64).reshape(4, 4)
     rot = pose[:3, :3]
     rigid = (
-        np.abs(pose[3] - (0.0, 0.0, 0.0, 1.0)).max() <= POSE_TOLERANCE
-        and np.abs(rot @ rot.T - np.eye(3)).max() <= POSE_TOLERANCE
-        and np.linalg.det(rot) > 0
+        max(abs(p[12]), abs(p[13]), abs(p[14]), abs(p[15] - 1.0)) <= POSE_TOLERANCE
+        and np.abs(rot @ rot.T - _EYE3).max() <= POSE_TOLERANCE
+        and _det3(p) > 0
     )
     if not rigid:
         raise _Reject(ErrorReason.INVALID_VALUE, "pose", "not a rigid transform (row-major 4x4)")
@@ -217,8 +258,8 @@ def decode_detection_frame(
     try:
         obj = _unpack(payload, limits)
         _check_version(obj)
-        frame = _validate(DetectionFrame, obj)
-        cols = _columns(frame.boxes, DETECTION_COLUMNS, "boxes", limits.max_boxes)
+        frame = _validate(DETECTION_FRAME, obj)
+        cols = _columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes)
         boxes = BoxArrays(classes=tuple(frame.boxes.classes), **cols)
         n_classes = len(boxes.classes)
         if len(boxes) and (
@@ -251,8 +292,8 @@ def decode_track_frame(
     try:
         obj = _unpack(payload, limits)
         _check_version(obj)
-        frame = _validate(TrackFrame, obj)
-        cols = _columns(frame.tracks, TRACK_COLUMNS, "tracks", limits.max_boxes)
+        frame = _validate(TRACK_FRAME, obj)
+        cols = _columns(frame.tracks, _TRACK_PLAN, "tracks", limits.max_boxes)
         return frame, TrackArrays(classes=tuple(frame.tracks.classes), **cols)
     except _Reject as r:
         return Rejection(
@@ -267,11 +308,16 @@ def decode_message(
     model: type[M],
     limits: DecodeLimits = DecodeLimits(),
 ) -> M | Rejection:
-    """Decode any other message (FrameError, ServiceStatus, SensorSnapshot)."""
+    """Decode any other message (FrameError, ServiceStatus, SensorSnapshot). ``model`` is a
+    message class of ``simpletrack.wire``, or its pydantic twin of ``simpletrack.wire.models``
+    (the server's): the same checks decide, then the twin is built from the map."""
     try:
         obj = _unpack(payload, limits)
         _check_version(obj)
-        return _validate(model, obj)
+        message = _validate(SPECS[model.__name__], obj)
+        if isinstance(message, model):
+            return message
+        return cast(M, cast(Any, model).model_validate(obj))
     except _Reject as r:
         return Rejection(r.reason, r.field, r.detail)
     except Exception as e:
@@ -292,8 +338,25 @@ def encode_detection_frame(
     pose: npt.ArrayLike | None = None,
     key_frame: bool = True,
 ) -> bytes:
-    """A ``DetectionFrame`` from numpy columns (what a vehicle-side publisher calls)."""
-    cols = BoxColumns.from_box_arrays(boxes)
+    """A ``DetectionFrame`` from numpy columns (what a vehicle-side publisher calls).
+    ValueError for a column of the wrong shape or a bad class table."""
+    s = DETECTION_SPECS
+    ci = to_column(boxes.class_index, s["class_index"])
+    cols: dict[str, Any] = {
+        "count": len(ci) // 4,
+        "classes": list(boxes.classes),
+        "class_index": ci,
+        "center": to_column(boxes.center, s["center"]),
+        "size": to_column(boxes.size, s["size"]),
+        "yaw": to_column(boxes.yaw, s["yaw"]),
+        "score": to_column(boxes.score, s["score"]),
+    }
+    if boxes.velocity is not None:
+        cols["velocity"] = to_column(boxes.velocity, s["velocity"])
+    try:
+        BOX_COLUMNS(cols)
+    except Invalid as e:
+        raise ValueError(f"boxes.{e.field}: {e.detail}") from None
     msg: dict[str, Any] = {
         "schema_version": SCHEMA_VERSION,
         "vehicle": vehicle,
@@ -302,7 +365,7 @@ def encode_detection_frame(
         "stamp_ns": int(stamp_ns),
         "frame_id": frame_id,
         "key_frame": bool(key_frame),
-        "boxes": cols.model_dump(mode="python", exclude_none=True),
+        "boxes": cols,
     }
     if pose is not None:
         msg["pose"] = [float(v) for v in np.asarray(pose, dtype=np.float64).reshape(16)]

@@ -7,10 +7,10 @@ column of width k occupies bytes ``[i*k*itemsize, (i+1)*k*itemsize)``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import JsonValue
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -30,8 +30,8 @@ class ColumnSpec:
     def row_bytes(self) -> int:
         return int(np.dtype(self.dtype).itemsize) * self.width
 
-    def json_schema_extra(self) -> dict[str, JsonValue]:
-        shape: list[JsonValue] = ["count"] if self.width == 1 else ["count", self.width]
+    def json_schema_extra(self) -> dict[str, Any]:  # JSON values, for the pydantic models
+        shape: list[str | int] = ["count"] if self.width == 1 else ["count", self.width]
         return {"x-dtype": self.dtype, "x-shape": shape}
 
 

@@ -29,6 +29,8 @@ from simpletrack.wire.codec import (
     pack,
 )
 from simpletrack.wire.columns import DETECTION_COLUMNS, TRACK_COLUMNS, BoxArrays, TrackArrays
+from simpletrack.wire.messages import FrameError as DecodedFrameError
+from simpletrack.wire.messages import to_map
 from simpletrack.wire.models import MESSAGES, FrameError
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
@@ -194,7 +196,7 @@ def decoded_json(kind: str, payload: bytes) -> dict[str, Any]:
         d = decode_detection_frame(payload)
         if isinstance(d, Rejection):
             return {"message": kind, "valid": False, "reason": d.reason.value, "field": d.field}
-        msg = d.frame.model_dump(mode="python")
+        msg = to_map(d.frame)
         msg["boxes"] = {
             "count": len(d.boxes),
             "classes": list(d.boxes.classes),
@@ -206,17 +208,17 @@ def decoded_json(kind: str, payload: bytes) -> dict[str, Any]:
         if isinstance(t, Rejection):
             return {"message": kind, "valid": False, "reason": t.reason.value, "field": t.field}
         frame, arrays = t
-        msg = frame.model_dump(mode="python")
+        msg = to_map(frame)
         msg["tracks"] = {
             "count": len(arrays),
             "classes": list(arrays.classes),
             **{c.name: _array_json(getattr(arrays, c.name)) for c in TRACK_COLUMNS},
         }
         return {"message": kind, "valid": True, "decoded": msg}
-    e = decode_message(payload, FrameError)
+    e = decode_message(payload, DecodedFrameError)
     if isinstance(e, Rejection):
         return {"message": kind, "valid": False, "reason": e.reason.value, "field": e.field}
-    return {"message": kind, "valid": True, "decoded": e.model_dump(mode="json")}
+    return {"message": kind, "valid": True, "decoded": {**to_map(e), "reason": e.reason.value}}
 
 
 _NUMBER_LIST = re.compile(r"\[[-+0-9.eE,\s]*\]")

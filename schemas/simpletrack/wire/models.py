@@ -1,5 +1,8 @@
-"""Pydantic models of every wire message. They validate the msgpack map *structure*; the
-column contents (lengths, finiteness, sizes) are checked by ``simpletrack.wire.codec``.
+"""Pydantic models of every wire message: the source of the JSON Schemas in ``schemas/json``
+and what the server builds its messages from. Decoders do not use them: they validate with the
+field tables of ``simpletrack.wire.messages`` (no pydantic), which agree with these models
+verdict for verdict (``tests/wire/test_validator_agrees.py``). The column contents (lengths,
+finiteness, sizes) are checked by ``simpletrack.wire.codec``.
 
 All messages are msgpack maps with string keys. Optional fields may be absent or nil.
 Unknown keys are rejected (``extra_field``) so that typos never pass silently.
@@ -21,10 +24,9 @@ from simpletrack.wire.columns import (
     TrackArrays,
     to_column,
 )
+from simpletrack.wire.messages import NAME_PATTERN as NAME_PATTERN  # the server's import
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
-# One Zenoh key chunk, also safe as a file name: no '/', wildcards, '@' or leading dot.
-NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$"
 Name = Annotated[str, Field(pattern=NAME_PATTERN, description="letters, digits, _ . - (<= 64)")]
 Int64 = Annotated[int, Field(ge=0, le=2**63 - 1)]
 ClassName = Annotated[str, Field(min_length=1, max_length=64)]

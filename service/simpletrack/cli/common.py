@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import argparse
 import re
+from dataclasses import replace
 
 import zenoh
-from pydantic import ValidationError
 
 from simpletrack.cli.errors import UserError
 from simpletrack.session import DEFAULT_LISTEN, ZenohOptions, add_zenoh_args, open_session
@@ -44,11 +44,10 @@ def client_options(args: argparse.Namespace) -> ZenohOptions:
     try:
         options = ZenohOptions.from_args(args)
         if options.mode.value == "peer" and not options.listen and not options.connect:
-            options = options.model_copy(update={"connect": list(DEFAULT_LISTEN)})
+            options = replace(options, connect=list(DEFAULT_LISTEN))
         return options
-    except ValidationError as exc:
-        first = exc.errors(include_url=False)[0]
-        raise UserError(str(first["msg"]).removeprefix("Value error, ")) from None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def open_client_session(options: ZenohOptions) -> zenoh.Session:

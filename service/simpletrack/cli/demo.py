@@ -109,8 +109,8 @@ def _options(args: argparse.Namespace) -> object:
             raise UserError("--service external needs --connect ENDPOINT (where the service is)")
         try:
             client = ZenohOptions.from_args(args)
-        except ValidationError as exc:
-            raise UserError(str(exc.errors(include_url=False)[0]["msg"])) from None
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
     else:
         if args.zenoh_connect or args.zenoh_mode == "client":
             raise UserError(

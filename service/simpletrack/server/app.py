@@ -64,7 +64,7 @@ class Service:
             self._http = HttpEndpoint(self.metrics, s.metrics_host, s.metrics_port, self.ready)
             self._http.start()
             self.http_port = self._http.port
-        self._session = session = open_session(s.zenoh)
+        self._session = session = open_session(s.zenoh.options())
         if s.state_dir is not None:
             s.state_dir.mkdir(parents=True, exist_ok=True)
             self._writer = SnapshotWriter()

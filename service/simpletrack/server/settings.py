@@ -22,6 +22,7 @@ from typing import Annotated, Any, Literal, get_args, get_origin
 import yaml
 from pydantic import (
     BaseModel,
+    ConfigDict,
     Field,
     PrivateAttr,
     ValidationError,
@@ -44,7 +45,16 @@ from simpletrack.server.tracker_settings import (
     TrackerOptions,
     resolve_tracker_config,
 )
-from simpletrack.session import DEFAULT_LISTEN, Congestion, ZenohOptions
+from simpletrack.session import (
+    DEFAULT_LISTEN,
+    ENDPOINT_LENGTH,
+    Congestion,
+    ZenohMode,
+    ZenohOptions,
+    check_config_file,
+    check_endpoints,
+    check_roles,
+)
 from simpletrack.wire.models import NAME_PATTERN
 
 ENV_PREFIX = "SIMPLETRACK_"
@@ -73,6 +83,60 @@ def _default_instance() -> str:
     return f"simpletrack-{host}"
 
 
+Endpoint = Annotated[str, Field(min_length=ENDPOINT_LENGTH[0], max_length=ENDPOINT_LENGTH[1])]
+
+
+class ZenohSettings(BaseModel):
+    """``ZenohOptions`` as settings: strings from the environment and files coerced, a bad
+    value named by its field. Same fields, defaults and rules (a test holds them equal);
+    ``options()`` is what opens the session."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    mode: ZenohMode = Field(
+        default=ZenohMode.PEER, description="peer (embedded) or client of routers"
+    )
+    listen: list[Endpoint] = Field(
+        default_factory=list,
+        description="endpoints to listen on (peer mode only); never all interfaces by default",
+    )
+    connect: list[Endpoint] = Field(
+        default_factory=list, description="endpoints (peers or routers) to connect to"
+    )
+    multicast_scouting: bool = Field(default=False, description="discover peers by UDP multicast")
+    config_file: Path | None = Field(
+        default=None,
+        description="Zenoh JSON5 config file to start from (TLS, access control); options above override it where given",
+    )
+    connect_timeout_ms: int | None = Field(
+        default=None,
+        ge=-1,
+        description="how long to try the connect endpoints at start (-1: wait for the router forever)",
+    )
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoint_syntax(cls, v: list[str]) -> list[str]:
+        check_endpoints(v)
+        return v
+
+    @field_validator("config_file")
+    @classmethod
+    def _file_exists(cls, v: Path | None) -> Path | None:
+        check_config_file(v)
+        return v
+
+    @model_validator(mode="after")
+    def _client_needs_router(self) -> ZenohSettings:
+        check_roles(self.mode, self.listen, self.connect, self.multicast_scouting, self.config_file)
+        return self
+
+    def options(self) -> ZenohOptions:
+        """The session options, with the same options given (they decide what a Zenoh
+        config file keeps)."""
+        return ZenohOptions(**{name: getattr(self, name) for name in self.model_fields_set})
+
+
 Seconds = Annotated[float, Field(gt=0.0)]
 _PREFIX = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}(/[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}){0,7}$"
 
@@ -94,8 +158,8 @@ class ServiceSettings(BaseSettings):
         default_factory=_default_instance,
         description="this instance's id in its liveliness/status keys (default from hostname)",
     )
-    zenoh: ZenohOptions = Field(
-        default_factory=lambda: ZenohOptions(),
+    zenoh: ZenohSettings = Field(
+        default_factory=lambda: ZenohSettings(),
         description="Zenoh session (flags --mode/--listen/--connect)",
     )
     preset: PresetName = Field(

@@ -1,0 +1,363 @@
+"""Every wire message as a light frozen dataclass, and the field table each is validated with.
+
+These are what the decoders return and what clients hold. The pydantic models of
+``simpletrack.wire.models`` describe the same messages field for field (they generate the JSON
+Schemas and are what the server builds); ``tests/wire/test_validator_agrees.py`` holds both
+to the same verdicts. Column contents (lengths, finiteness, sizes) are the codec's business.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.wire.fields import (
+    Field,
+    MapSpec,
+    all_floats,
+    array,
+    binary,
+    boolean,
+    integer,
+    literal,
+    nullable,
+    number,
+    one_of,
+    string,
+    strings_between,
+)
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+# One Zenoh key chunk, also safe as a file name: no '/', wildcards, '@' or leading dot.
+NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$"
+INT64_MAX = 2**63 - 1
+INT32_MAX = 2**31 - 1
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BoxColumns:
+    """N detection boxes as columns (layout: ``simpletrack.wire.columns.DETECTION_COLUMNS``)."""
+
+    count: int
+    classes: list[str]
+    class_index: bytes
+    center: bytes
+    size: bytes
+    yaw: bytes
+    score: bytes
+    velocity: bytes | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackColumns:
+    """N tracks as columns (layout: ``simpletrack.wire.columns.TRACK_COLUMNS``)."""
+
+    count: int
+    classes: list[str]
+    id: bytes
+    class_index: bytes
+    center: bytes
+    size: bytes
+    yaw: bytes
+    score: bytes
+    velocity: bytes
+    state: bytes
+    hits: bytes
+    age: bytes
+    time_since_update: bytes
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DetectionFrame:
+    """One sensor frame of 3D detections: ``<prefix>/<vehicle>/<sensor>/detections``."""
+
+    schema_version: int
+    vehicle: str
+    sensor: str
+    seq: int
+    stamp_ns: int
+    frame_id: str
+    pose: list[float] | None = None
+    key_frame: bool = True
+    boxes: BoxColumns
+
+    def pose_matrix(self) -> npt.NDArray[np.float64] | None:
+        return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackFrame:
+    """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``."""
+
+    schema_version: int
+    vehicle: str
+    sensor: str
+    seq: int
+    stamp_ns: int
+    frame_id: str
+    pose: list[float] | None = None
+    key_frame: bool = True
+    instance: str
+    received_ns: int
+    published_ns: int
+    tracks: TrackColumns
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FrameError:
+    """A frame that was not tracked: ``<prefix>/<vehicle>/<sensor>/errors``."""
+
+    schema_version: int
+    vehicle: str
+    sensor: str
+    seq: int | None = None
+    stamp_ns: int | None = None
+    reason: ErrorReason
+    field: str | None = None
+    detail: str
+    instance: str
+    received_ns: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorStatus:
+    vehicle: str
+    sensor: str
+    last_seq: int | None
+    last_stamp_ns: int | None
+    frames: int
+    active_tracks: int
+    idle_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ServiceStatus:
+    """Reply of the status queryable ``<prefix>/@simpletrack/<instance>/status``."""
+
+    schema_version: int
+    instance: str
+    version: str
+    preset: str
+    classes: list[str]
+    config_digest: str
+    started_ns: int
+    ready: bool
+    queue_depth: int
+    sensors: list[SensorStatus]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorSnapshot:
+    """One sensor's tracker state: the snapshot file, and the snapshot queryable's reply."""
+
+    schema_version: int
+    vehicle: str
+    sensor: str
+    last_seq: int | None = None
+    last_stamp_ns: int | None = None
+    stamp_origin_ns: int | None = None
+    id_base: int = 0
+    id_next: int = 0
+    frames: int = 0
+    config_digest: str
+    tracker: bytes | None = None
+    written_ns: int
+
+
+# --- the field tables (order = the order of checks, as in schemas/README.md) ---------------
+
+_name = string(pattern=NAME_PATTERN)
+_int64 = integer(0, INT64_MAX)
+_pose = nullable(array(number, min_length=16, max_length=16, fast=all_floats))
+_classes = array(string(min_length=1, max_length=64), max_length=1024, fast=strings_between(1, 64))
+_count = integer(0, INT32_MAX)
+
+
+def _columns(names: tuple[str, ...], optional: tuple[str, ...] = ()) -> list[Field]:
+    return [Field(n, nullable(binary), None) if n in optional else Field(n, binary) for n in names]
+
+
+def _header() -> list[Field]:
+    return [
+        Field("schema_version", literal(SCHEMA_VERSION)),
+        Field("vehicle", _name),
+        Field("sensor", _name),
+        Field("seq", _int64),
+        Field("stamp_ns", _int64),
+    ]
+
+
+BOX_COLUMNS = MapSpec(
+    "BoxColumns",
+    BoxColumns,
+    [
+        Field("count", _count),
+        Field("classes", _classes),
+        *_columns(
+            ("class_index", "center", "size", "yaw", "score", "velocity"), optional=("velocity",)
+        ),
+    ],
+)
+TRACK_COLUMNS = MapSpec(
+    "TrackColumns",
+    TrackColumns,
+    [
+        Field("count", _count),
+        Field("classes", _classes),
+        *_columns(
+            (
+                "id",
+                "class_index",
+                "center",
+                "size",
+                "yaw",
+                "score",
+                "velocity",
+                "state",
+                "hits",
+                "age",
+                "time_since_update",
+            )
+        ),
+    ],
+)
+DETECTION_FRAME = MapSpec(
+    "DetectionFrame",
+    DetectionFrame,
+    [
+        *_header(),
+        Field("frame_id", string(min_length=1, max_length=128)),
+        Field("pose", _pose, None),
+        Field("key_frame", boolean, True),
+        Field("boxes", BOX_COLUMNS),
+    ],
+)
+TRACK_FRAME = MapSpec(
+    "TrackFrame",
+    TrackFrame,
+    [
+        *_header(),
+        Field("frame_id", string(min_length=1, max_length=128)),
+        Field("pose", _pose, None),
+        Field("key_frame", boolean, True),
+        Field("instance", _name),
+        Field("received_ns", _int64),
+        Field("published_ns", _int64),
+        Field("tracks", TRACK_COLUMNS),
+    ],
+)
+FRAME_ERROR = MapSpec(
+    "FrameError",
+    FrameError,
+    [
+        Field("schema_version", literal(SCHEMA_VERSION)),
+        Field("vehicle", _name),
+        Field("sensor", _name),
+        Field("seq", nullable(_int64), None),
+        Field("stamp_ns", nullable(_int64), None),
+        Field("reason", one_of(ErrorReason)),
+        Field("field", nullable(string(max_length=256)), None),
+        Field("detail", string(max_length=1024)),
+        Field("instance", _name),
+        Field("received_ns", _int64),
+    ],
+)
+SENSOR_STATUS = MapSpec(
+    "SensorStatus",
+    SensorStatus,
+    [
+        Field("vehicle", _name),
+        Field("sensor", _name),
+        Field("last_seq", nullable(_int64)),
+        Field("last_stamp_ns", nullable(_int64)),
+        Field("frames", _int64),
+        Field("active_tracks", _int64),
+        Field("idle_s", number),
+    ],
+)
+SERVICE_STATUS = MapSpec(
+    "ServiceStatus",
+    ServiceStatus,
+    [
+        Field("schema_version", literal(SCHEMA_VERSION)),
+        Field("instance", _name),
+        Field("version", string()),
+        Field("preset", string()),
+        Field("classes", array(string())),
+        Field("config_digest", string()),
+        Field("started_ns", _int64),
+        Field("ready", boolean),
+        Field("queue_depth", _int64),
+        Field("sensors", array(SENSOR_STATUS)),
+    ],
+)
+SENSOR_SNAPSHOT = MapSpec(
+    "SensorSnapshot",
+    SensorSnapshot,
+    [
+        Field("schema_version", literal(SCHEMA_VERSION)),
+        Field("vehicle", _name),
+        Field("sensor", _name),
+        Field("last_seq", nullable(_int64), None),
+        Field("last_stamp_ns", nullable(_int64), None),
+        Field("stamp_origin_ns", nullable(_int64), None),
+        Field("id_base", _int64, 0),
+        Field("id_next", _int64, 0),
+        Field("frames", _int64, 0),
+        Field("config_digest", string()),
+        Field("tracker", nullable(binary), None),
+        Field("written_ns", _int64),
+    ],
+)
+
+Message = (
+    DetectionFrame
+    | TrackFrame
+    | FrameError
+    | ServiceStatus
+    | SensorSnapshot
+    | SensorStatus
+    | BoxColumns
+    | TrackColumns
+)
+MESSAGE_TYPES = (
+    DetectionFrame,
+    TrackFrame,
+    FrameError,
+    ServiceStatus,
+    SensorSnapshot,
+    SensorStatus,
+    BoxColumns,
+    TrackColumns,
+)
+
+SPECS: dict[str, MapSpec[Any]] = {
+    s.name: s
+    for s in (
+        BOX_COLUMNS,
+        TRACK_COLUMNS,
+        DETECTION_FRAME,
+        TRACK_FRAME,
+        FRAME_ERROR,
+        SENSOR_STATUS,
+        SERVICE_STATUS,
+        SENSOR_SNAPSHOT,
+    )
+}
+
+
+def to_map(message: Message) -> dict[str, Any]:
+    """A message as the map that travels: fields in declaration order, nested messages as
+    maps (what ``pydantic``'s ``model_dump(mode="python")`` gives for the model twin)."""
+    return {f.name: _plain(getattr(message, f.name)) for f in fields(message)}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, MESSAGE_TYPES):
+        return to_map(value)
+    if type(value) is list:
+        return [_plain(v) for v in value]
+    return value

@@ -1,0 +1,235 @@
+"""The pydantic-free validator of ``simpletrack.wire.messages`` against the pydantic models it
+replaced on the decode path: for valid and mutated maps of every message, the same verdict,
+the same (reason, field, message) for the first error, and the same values when accepted."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import msgpack
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pydantic import BaseModel, ValidationError
+
+from simpletrack.wire import ErrorReason, generate, models
+from simpletrack.wire.fields import Invalid
+from simpletrack.wire.messages import SPECS, to_map
+from tests.wire.test_fuzz import msgpack_values
+
+AGREE = settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _pydantic_verdict(model: type[BaseModel], obj: Any) -> tuple[Any, ...]:
+    """What the codec reported before the validator: the first pydantic error, mapped."""
+    try:
+        return ("ok", repr(model.model_validate(obj).model_dump(mode="python")))
+    except ValidationError as err:
+        first = err.errors(include_url=False)[0]
+        kind = first["type"]
+        if kind == "missing":
+            reason = ErrorReason.MISSING_FIELD
+        elif kind == "extra_forbidden":
+            reason = ErrorReason.EXTRA_FIELD
+        elif kind.endswith("_type") or kind in {"model_attributes_type", "literal_error"}:
+            reason = ErrorReason.WRONG_TYPE
+        else:
+            reason = ErrorReason.INVALID_VALUE
+        field = ".".join(str(p) for p in first["loc"]) or None
+        return (reason, field, str(first["msg"]))
+
+
+def _light_verdict(name: str, obj: Any) -> tuple[Any, ...]:
+    try:
+        return ("ok", repr(to_map(SPECS[name](obj))))
+    except Invalid as e:
+        return (e.reason, e.field, e.detail)
+
+
+def _unpacked(payload: bytes) -> dict[str, Any]:
+    obj: dict[str, Any] = msgpack.unpackb(payload, raw=False)
+    return obj
+
+
+_STATUS = {
+    "vehicle": "truck-07",
+    "sensor": "lidar_top",
+    "last_seq": 41,
+    "last_stamp_ns": None,
+    "frames": 12,
+    "active_tracks": 3,
+    "idle_s": 0.25,
+}
+BASES: dict[str, dict[str, Any]] = {
+    "DetectionFrame": _unpacked(generate.VECTORS["detection_full"][1]()),
+    "TrackFrame": _unpacked(generate._tracks()),
+    "FrameError": _unpacked(generate._error()),
+    "ServiceStatus": {
+        "schema_version": 1,
+        "instance": "simpletrack-a",
+        "version": "0.1.0",
+        "preset": "kitti",
+        "classes": ["Car", "Pedestrian", "Cyclist"],
+        "config_digest": "ab" * 32,
+        "started_ns": 1_700_000_000_000_000_000,
+        "ready": True,
+        "queue_depth": 0,
+        "sensors": [_STATUS, {**_STATUS, "sensor": "radar", "idle_s": 3}],
+    },
+    "SensorSnapshot": {
+        "schema_version": 1,
+        "vehicle": "truck-07",
+        "sensor": "lidar_top",
+        "last_seq": 41,
+        "stamp_origin_ns": 5,
+        "id_next": 9,
+        "config_digest": "ab" * 32,
+        "tracker": b"\x00\x01",
+        "written_ns": 7,
+    },
+}
+MODELS: dict[str, type[BaseModel]] = {
+    "DetectionFrame": models.DetectionFrame,
+    "TrackFrame": models.TrackFrame,
+    "FrameError": models.FrameError,
+    "ServiceStatus": models.ServiceStatus,
+    "SensorSnapshot": models.SensorSnapshot,
+}
+
+
+def _paths(obj: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+    """Every key and list index of a map, nested ones included."""
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj)
+    out = []
+    for k, v in items:
+        out.append((*prefix, k))
+        if isinstance(v, dict | list) and not isinstance(v, bytes):
+            out += _paths(v, (*prefix, k))
+    return out
+
+
+# Values at the edges of the rules: bounds, patterns, lengths, near-miss types.
+EDGE_VALUES: list[Any] = [
+    -1,
+    0,
+    1,
+    True,
+    False,
+    1.0,
+    0.5,
+    float("nan"),
+    2**31 - 1,
+    2**31,
+    2**63 - 1,
+    2**63,
+    -(2**63),
+    "",
+    "a",
+    "v1",
+    "v1\n",
+    "a/b",
+    ".hidden",
+    "a" * 64,
+    "a" * 65,
+    "a" * 129,
+    "a" * 257,
+    "a" * 1025,
+    "é",
+    "malformed",
+    "unknown_class",
+    b"",
+    b"malformed",
+    b"\xff",
+    None,
+    [],
+    {},
+    [1.0] * 15,
+    [1.0] * 16,
+    [1] * 16,
+    [1.0] * 17,
+    [1.0] * 15 + ["x"],
+    ["x"] + [1.0] * 16,
+    ["Car"],
+    ["Car", ""],
+    ["a" * 65],
+    ["a"] * 1025,
+    [""] + ["a"] * 1024,
+    [_STATUS],
+    [{**_STATUS, "frames": -1}],
+    [3],
+    [True] * 16,
+]
+EDGES = st.sampled_from(EDGE_VALUES)
+VALUES = EDGES | msgpack_values | st.just("__delete__")
+KEYS = st.sampled_from(["speed", "b", "count", "Seq", b"seq", b"x"]) | st.text(max_size=6)
+
+
+def _mutate(obj: dict[str, Any], path: tuple[Any, ...], value: Any) -> None:
+    target: Any = obj
+    for p in path[:-1]:
+        target = target[p]
+    if value == "__delete__":
+        if isinstance(target, dict):
+            del target[path[-1]]
+        else:
+            target.pop(path[-1])
+    else:
+        target[path[-1]] = copy.deepcopy(value)  # EDGES hands out shared objects
+
+
+def _assert_agree(name: str, obj: Any) -> None:
+    assert _light_verdict(name, obj) == _pydantic_verdict(MODELS[name], obj)
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_valid_messages_are_accepted_with_the_same_values(name: str) -> None:
+    assert _light_verdict(name, BASES[name])[0] == "ok"
+    _assert_agree(name, BASES[name])
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_every_field_absent_gives_the_same_verdict(name: str) -> None:
+    for path in _paths(BASES[name]):
+        obj = copy.deepcopy(BASES[name])
+        _mutate(obj, path, "__delete__")
+        _assert_agree(name, obj)
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+def test_each_edge_value_in_each_place_gives_the_same_verdict(name: str) -> None:
+    for path in _paths(BASES[name]):
+        for value in EDGE_VALUES:
+            obj = copy.deepcopy(BASES[name])
+            _mutate(obj, path, value)
+            _assert_agree(name, obj)
+
+
+@pytest.mark.parametrize("name", sorted(BASES))
+@AGREE
+@given(data=st.data())
+def test_mutated_maps_give_the_same_first_error(name: str, data: st.DataObject) -> None:
+    obj = copy.deepcopy(BASES[name])
+    for _ in range(data.draw(st.integers(1, 3))):
+        paths = _paths(obj)
+        if not paths or data.draw(st.integers(0, 4)) == 0:
+            # An unknown key at the top or in a nested map.
+            maps = [()] + [p for p in paths if isinstance(_at(obj, p), dict)]
+            where = data.draw(st.sampled_from(maps))
+            _at(obj, where)[data.draw(KEYS)] = data.draw(msgpack_values)
+        else:
+            _mutate(obj, data.draw(st.sampled_from(paths)), data.draw(VALUES))
+    _assert_agree(name, obj)
+
+
+@AGREE
+@given(value=msgpack_values)
+def test_any_document_gives_the_same_verdict(value: Any) -> None:
+    for name in MODELS:
+        _assert_agree(name, value)
+
+
+def _at(obj: Any, path: tuple[Any, ...]) -> Any:
+    for p in path:
+        obj = obj[p]
+    return obj
