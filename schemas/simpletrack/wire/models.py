@@ -21,7 +21,6 @@ from simpletrack.wire.columns import (
     TRACK_SPECS,
     BoxArrays,
     ColumnSpec,
-    TrackArrays,
     to_column,
 )
 from simpletrack.wire.messages import NAME_PATTERN as NAME_PATTERN  # the server's import
@@ -120,15 +119,6 @@ class TrackColumns(WireModel):
     time_since_update: bytes = _column(
         TRACK_SPECS["time_since_update"], "int32 frames since the last update"
     )
-
-    @classmethod
-    def from_track_arrays(cls, t: TrackArrays) -> TrackColumns:
-        s = TRACK_SPECS
-        return cls(
-            count=len(t),
-            classes=list(t.classes),
-            **{name: to_column(getattr(t, name), spec) for name, spec in s.items()},
-        )
 
 
 class _Header(WireModel):
