@@ -17,7 +17,9 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import zenoh
 
@@ -187,11 +189,20 @@ def _port_open(endpoint: str) -> bool:
         return s.connect_ex((host, int(port))) == 0
 
 
+@dataclass(frozen=True)
+class SpawnedService:
+    endpoint: str
+    instance: str
+    proc: subprocess.Popen[bytes]
+
+
 @contextlib.contextmanager
-def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator[str]:
+def spawned_service(
+    preset: str, *extra: str, log: IO[bytes], startup_s: float = 60.0
+) -> Iterator[SpawnedService]:
     """Run ``simpletrack serve --preset PRESET`` on a free loopback port for the duration of
-    the block (lossless backpressure, no metrics port, no state directory); yields its
-    endpoint. Stopped with SIGTERM."""
+    the block (lossless backpressure, no metrics port, no state directory), its output in
+    ``log``. Stopped with SIGTERM; a service that died on its own is left as it is."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     instance = f"eval-{os.getpid()}"
     cmd = serve_command(
@@ -206,29 +217,38 @@ def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator
         "warning",
         *extra,
     )
-    with tempfile.TemporaryFile() as log:
-        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log)
-        try:
-            deadline = time.monotonic() + startup_s
-            while not _port_open(endpoint):
-                if proc.poll() is not None:
-                    log.seek(0)
-                    tail = log.read().decode(errors="replace").strip()[-500:]
-                    raise RemoteError(f"the service exited ({proc.returncode}): {tail}")
-                if time.monotonic() > deadline:
-                    raise RemoteError("the service did not start in time")
-                time.sleep(0.05)
-            with open_session(ZenohOptions(connect=[endpoint])) as session:
-                _check_started(session, Keys().status(instance), deadline)
-            yield endpoint
-        finally:
-            if proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(30)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log)
+    try:
+        deadline = time.monotonic() + startup_s
+        while not _port_open(endpoint):
+            if proc.poll() is not None:
+                log.seek(0)
+                tail = log.read().decode(errors="replace").strip()[-500:]
+                raise RemoteError(f"the service exited ({proc.returncode}): {tail}")
+            if time.monotonic() > deadline:
+                raise RemoteError("the service did not start in time")
+            time.sleep(0.05)
+        with open_session(ZenohOptions(connect=[endpoint])) as session:
+            _check_started(session, Keys().status(instance), deadline)
+        yield SpawnedService(endpoint, instance, proc)
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@contextlib.contextmanager
+def spawn_service(preset: str, *extra: str, startup_s: float = 60.0) -> Iterator[str]:
+    """``spawned_service`` with its output thrown away; yields the endpoint."""
+    with (
+        tempfile.TemporaryFile() as log,
+        spawned_service(preset, *extra, log=log, startup_s=startup_s) as svc,
+    ):
+        yield svc.endpoint
 
 
 def _check_started(session: zenoh.Session, status_key: str, deadline: float) -> None:
