@@ -1,5 +1,6 @@
-"""``simpletrack bench fuzz``: valid and mutated frames through a real service. Every frame is
-answered exactly once, nothing non-finite comes back, and the service survives."""
+"""``simpletrack bench fuzz`` and ``bench faults``: valid and mutated frames through a real
+service (every frame answered exactly once, nothing non-finite, the service survives), and a
+fault scenario whose victim frames all add up."""
 
 from __future__ import annotations
 
@@ -31,3 +32,12 @@ def test_every_mutation_still_yields_bytes_the_decoder_answers() -> None:
     for _ in range(500):
         _, payload = mutate(valid_frame("v", "s", 3, rng), rng)
         assert isinstance(decode_detection_frame(payload), DecodedDetections | Rejection)
+
+
+def test_a_fault_scenario_reports_every_frame_of_its_victim(tmp_path: Path) -> None:
+    out = tmp_path / "faults.json"
+    assert main(["bench", "faults", "--scenarios", "publisher_restart", "--json", str(out)]) == 0
+    (r,) = json.loads(out.read_text())["scenarios"]
+    assert r["sent"] > 40 and not r["notes"], r
+    assert r["sent"] == r["tracked"] + r["announced"] + r["unanswered"], r
+    assert r["bystander_sent"] > 40 and r["ids_kept"].endswith("/6")
