@@ -82,9 +82,7 @@ ORDER_TABLE = [
     pytest.param(
         LAST, at(6, T - 5 * S - 1), Order.RESET_TIME_BACKWARDS, id="over reset_backward_s behind"
     ),
-    pytest.param(
-        at(100, T), at(0, T - 60 * S), Order.RESET_TIME_BACKWARDS, id="replay restarted"
-    ),
+    pytest.param(at(100, T), at(0, T - 60 * S), Order.RESET_TIME_BACKWARDS, id="replay restarted"),
     pytest.param(LAST, at(4, T + S // 10, S // 10), Order.TRACK, id="seq back, stamp forward"),
     pytest.param(LAST, at(0, T + S // 10, S // 10), Order.TRACK, id="seq restarted at 0"),
     pytest.param(
