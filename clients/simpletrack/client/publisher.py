@@ -8,8 +8,10 @@
         for err in pub.errors(timeout=0):       # frames the service refused, if any
             print(err.seq, err.reason, err.detail)
 
-Frames are stamped with a per-sensor ``seq`` (strictly increasing) and, unless given, the
-wall-clock ``stamp_ns``. Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors``
+Frames are stamped with a per-sensor ``seq`` (strictly increasing), unless given the
+wall-clock ``stamp_ns``, and the publisher's ``session_id`` (random per publisher: the service
+knows a restarted publisher by it and tracks it from its first frame). ``resume()`` asks the
+service for the last seq it processed and continues after it. Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors``
 reach ``on_error`` (called on a Zenoh thread: keep it short) and the ``errors()`` iterator.
 """
 
@@ -18,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import secrets
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -39,7 +42,7 @@ from simpletrack.wire import (
     encode_detection_frame,
 )
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.messages import NAME_PATTERN
+from simpletrack.wire.messages import NAME_PATTERN, SensorStatus, ServiceStatus
 
 if TYPE_CHECKING:
     from typing_extensions import TypeIs
@@ -74,7 +77,7 @@ class Box:
 
 
 def check_name(kind: str, value: str) -> str:
-    if not re.match(NAME_PATTERN, value):
+    if not re.fullmatch(NAME_PATTERN, value):  # match's '$' lets a trailing newline through
         raise ValueError(
             f"{kind} id {value!r} must be 1-64 letters, digits, '_', '.' or '-' (no '/' or '*')"
         )
@@ -128,6 +131,7 @@ class DetectionPublisher:
         on_error: Callable[[FrameError], None] | None = None,
         error_buffer: int = 1000,
         first_seq: int = 0,
+        session_id: int | None = None,
     ) -> None:
         self.vehicle = check_name("vehicle", vehicle)
         self.sensor = check_name("sensor", sensor)
@@ -135,6 +139,8 @@ class DetectionPublisher:
         self.frame_id = frame_id or sensor
         self.keys = Keys(prefix)
         self.next_seq = first_seq
+        # 63 random bits: two runs of one sensor's publisher never share an id in practice.
+        self.session_id = secrets.randbits(63) if session_id is None else session_id
         self.sent = 0
         self.invalid_errors = 0
         self._session = session
@@ -216,11 +222,41 @@ class DetectionPublisher:
             boxes=boxes,
             pose=pose,
             key_frame=key_frame,
+            session_id=self.session_id,
         )
         self._publisher.put(payload)
         self.next_seq = seq + 1
         self.sent += 1
         return seq
+
+    def last_processed(self, timeout: float = 2.0) -> SensorStatus | None:
+        """What the service last tracked of this sensor (``last_seq``, ``last_stamp_ns``),
+        from the status queryable of every instance that answers within ``timeout``; the
+        latest stamp wins. None when no service holds the sensor."""
+        selector = f"{self.keys.status('*')}?vehicle={self.vehicle};sensor={self.sensor}"
+        best: SensorStatus | None = None
+        for reply in self._session.get(selector, timeout=timeout):
+            if reply.ok is None:
+                continue
+            status = decode_message(reply.ok.payload.to_bytes(), ServiceStatus)
+            if isinstance(status, Rejection):
+                continue
+            for st in status.sensors:
+                if (st.vehicle, st.sensor) != (self.vehicle, self.sensor):
+                    continue
+                if best is None or (st.last_stamp_ns or -1) > (best.last_stamp_ns or -1):
+                    best = st
+        return best
+
+    def resume(self, timeout: float = 2.0) -> int | None:
+        """Continue the stream after the last seq the service processed: the next frame
+        gets that seq + 1 (never less than this publisher's own next one). Returns the
+        service's last seq, or None (nothing known: numbering goes on unchanged)."""
+        st = self.last_processed(timeout)
+        if st is None or st.last_seq is None:
+            return None
+        self.next_seq = max(self.next_seq, st.last_seq + 1)
+        return st.last_seq
 
     def wait_for_service(self, timeout: float) -> bool:
         """True once some subscriber (a service) matches this sensor's detections key."""

@@ -337,9 +337,11 @@ def encode_detection_frame(
     boxes: BoxArrays,
     pose: npt.ArrayLike | None = None,
     key_frame: bool = True,
+    session_id: int | None = None,
 ) -> bytes:
     """A ``DetectionFrame`` from numpy columns (what a vehicle-side publisher calls).
-    ValueError for a column of the wrong shape or a bad class table."""
+    ValueError for a column of the wrong shape or a bad class table. ``session_id`` None
+    leaves the field out (the frame a publisher of before the field would send)."""
     s = DETECTION_SPECS
     ci = to_column(boxes.class_index, s["class_index"])
     cols: dict[str, Any] = {
@@ -369,6 +371,8 @@ def encode_detection_frame(
     }
     if pose is not None:
         msg["pose"] = [float(v) for v in np.asarray(pose, dtype=np.float64).reshape(16)]
+    if session_id is not None:
+        msg["session_id"] = int(session_id)
     return pack(msg)
 
 

@@ -82,6 +82,7 @@ class DetectionFrame:
     frame_id: str
     pose: list[float] | None = None
     key_frame: bool = True
+    session_id: int | None = None
     boxes: BoxColumns
 
     def pose_matrix(self) -> npt.NDArray[np.float64] | None:
@@ -162,6 +163,8 @@ class SensorSnapshot:
     id_base: int = 0
     id_next: int = 0
     frames: int = 0
+    last_received_ns: int | None = None
+    last_session_id: int | None = None
     config_digest: str
     tracker: bytes | None = None
     written_ns: int
@@ -232,6 +235,7 @@ DETECTION_FRAME = MapSpec(
         Field("frame_id", string(min_length=1, max_length=128)),
         Field("pose", _pose, None),
         Field("key_frame", boolean, True),
+        Field("session_id", nullable(_int64), None),
         Field("boxes", BOX_COLUMNS),
     ],
 )
@@ -307,6 +311,8 @@ SENSOR_SNAPSHOT = MapSpec(
         Field("id_base", _int64, 0),
         Field("id_next", _int64, 0),
         Field("frames", _int64, 0),
+        Field("last_received_ns", nullable(_int64), None),
+        Field("last_session_id", nullable(_int64), None),
         Field("config_digest", string()),
         Field("tracker", nullable(binary), None),
         Field("written_ns", _int64),

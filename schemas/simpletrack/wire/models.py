@@ -137,6 +137,10 @@ class DetectionFrame(_Header):
     )
     pose: Pose | None = Field(default=None, description="optional sensor->world 4x4, row-major")
     key_frame: bool = Field(default=True, description="false marks 10 Hz nuScenes non-key frames")
+    session_id: Int64 | None = Field(
+        default=None,
+        description="random id of the publisher's run: a new value marks a restarted stream",
+    )
     boxes: BoxColumns
 
     def pose_matrix(self) -> npt.NDArray[np.float64] | None:
@@ -221,6 +225,12 @@ class SensorSnapshot(WireModel):
     id_base: Int64 = Field(default=0, description="added to tracker ids; raised on every reset")
     id_next: Int64 = Field(default=0, description="lowest id never published on this stream")
     frames: Int64 = 0
+    last_received_ns: Int64 | None = Field(
+        default=None, description="service wall clock (unix ns) at receipt of the last frame"
+    )
+    last_session_id: Int64 | None = Field(
+        default=None, description="session_id of the last frame (nil: none given)"
+    )
     config_digest: str = Field(description="sha256 of the tracker configuration")
     tracker: bytes | None = Field(default=None, description="opaque Tracker.to_bytes() blob")
     written_ns: Int64

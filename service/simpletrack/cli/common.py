@@ -31,7 +31,7 @@ def add_client_args(parser: argparse.ArgumentParser, prefix: bool = True) -> Non
 
 
 def check_prefix(prefix: str) -> str:
-    if not _PREFIX.match(prefix):
+    if not _PREFIX.fullmatch(prefix):  # match's '$' would let a trailing newline through
         raise UserError(
             f"--prefix {prefix!r} must be key chunks of letters, digits, _ . - (no wildcards)"
         )

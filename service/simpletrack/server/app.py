@@ -143,7 +143,7 @@ class Service:
         vehicle, sensor = self.keys.sensor_of(item.key) or ("", "")
         self.metrics.count_error(reason, vehicle)
         if reason is ErrorReason.DROPPED_SHUTDOWN and self._session is not None:
-            if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
+            if NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor):
                 r = dropped(reason, item.payload)
                 err = frame_error(vehicle, sensor, r, self.settings.instance, item.received_ns)
                 with contextlib.suppress(zenoh.ZError):
@@ -156,7 +156,12 @@ class Service:
                     )
             log.warning("frame_dropped", vehicle=vehicle, sensor=sensor, reason=reason.value)
 
-    def status(self) -> ServiceStatus:
+    def status(self, only: tuple[str, str] | None = None) -> ServiceStatus:
+        """The service's status; ``only`` (vehicle, sensor) keeps that sensor's entry alone
+        (what a resuming publisher asks for: its last processed seq)."""
+        sensors = [st for w in self._workers for st in w.sensors.status()]
+        if only is not None:
+            sensors = [st for st in sensors if (st.vehicle, st.sensor) == only]
         return ServiceStatus(
             schema_version=SCHEMA_VERSION,
             instance=self.settings.instance,
@@ -167,13 +172,18 @@ class Service:
             started_ns=self.started_ns,
             ready=self.ready(),
             queue_depth=depth(self._queues),
-            sensors=[st for w in self._workers for st in w.sensors.status()],
+            sensors=sensors,
         )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
+        params = query.parameters
+        vehicle, sensor = params.get("vehicle"), params.get("sensor")
+        only = (vehicle, sensor) if vehicle is not None and sensor is not None else None
         try:
             query.reply(
-                self.keys.status(self.settings.instance), encode(self.status()), encoding=MSGPACK
+                self.keys.status(self.settings.instance),
+                encode(self.status(only)),
+                encoding=MSGPACK,
             )
         except zenoh.ZError as e:
             log.warning("query_reply_failed", key=str(query.key_expr), error=str(e))
@@ -186,7 +196,7 @@ class Service:
         asked = zenoh.KeyExpr(str(query.key_expr))
         parts = str(query.key_expr).split("/")
         vehicle, sensor = parts[-2], parts[-1]
-        if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
+        if NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor):
             index = worker_index(self.keys.detections(vehicle, sensor), len(self._workers))
             targets = [self._workers[index]]
         else:

@@ -13,7 +13,7 @@ from pathlib import Path
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
-from simpletrack.server.sensors import SensorBudget, SensorState
+from simpletrack.server.sensors import Arrival, SensorBudget, SensorState
 from simpletrack.server.snapshots import Batch, SnapshotWriter, snapshot_path
 from simpletrack.wire.codec import encode as encode_message
 from simpletrack.wire.models import SensorSnapshot, SensorStatus
@@ -93,8 +93,7 @@ class SensorRegistry:
             sensor=snap.sensor,
             tracker=tracker,
             id_base=id_base,
-            last_seq=snap.last_seq,
-            last_stamp_ns=snap.last_stamp_ns,
+            last=_last_of(snap),
             stamp_origin_ns=snap.stamp_origin_ns,
             frames=snap.frames,
             dirty=False,
@@ -183,3 +182,13 @@ class SensorRegistry:
 
     def names(self) -> list[tuple[str, str]]:
         return [(s.vehicle, s.sensor) for s in list(self.sensors.values())]
+
+
+def _last_of(snap: SensorSnapshot) -> Arrival | None:
+    """The last frame a snapshot saw. A snapshot of before ``last_received_ns`` gives its
+    writing time instead: later than the receipt by at most a snapshot interval, so a clock
+    jump smaller than that may then be taken for an outage."""
+    if snap.last_seq is None or snap.last_stamp_ns is None:
+        return None
+    received = snap.last_received_ns if snap.last_received_ns is not None else snap.written_ns
+    return Arrival(snap.last_seq, snap.last_stamp_ns, received, snap.last_session_id)

@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass, field
 from enum import Enum
 
+from simpletrack.core.state import TrackTable
 from simpletrack.core.tracker import Tracker
 from simpletrack.wire.models import SensorSnapshot
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
@@ -34,31 +35,96 @@ class SensorBudget:
             self.used -= 1
 
 
+@dataclass(frozen=True, slots=True)
+class Arrival:
+    """What the ordering rules read of a frame: its ``seq`` and sensor ``stamp_ns``, the
+    service's wall clock at receipt (None: unknown, e.g. a snapshot of before the field) and
+    the publisher's ``session_id`` (None: the publisher sends none)."""
+
+    seq: int
+    stamp_ns: int
+    received_ns: int | None = None
+    session_id: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class _Undo:
+    """A sensor as it was before its last frame. Cheap: the tracker replaces its track
+    table on every step and never writes into it, so holding the old one copies nothing."""
+
+    tracks: TrackTable
+    frame_count: int
+    tracker_last_stamp: float | None
+    id_base: int
+    stamp_origin_ns: int | None
+    last: Arrival | None
+    active_tracks: int
+
+
 @dataclass
 class SensorState:
     vehicle: str
     sensor: str
     tracker: Tracker
     id_base: int = 0  # wire id = id_base + tracker id; raised past every id on each reset
-    last_seq: int | None = None
-    last_stamp_ns: int | None = None
+    last: Arrival | None = None  # the last tracked frame
+    before: Arrival | None = None  # the one tracked before it (None after a restore or undo)
     stamp_origin_ns: int | None = None
     frames: int = 0
     active_tracks: int = 0
     last_seen: float = field(default_factory=time.monotonic)
     dirty: bool = True
+    _undo: _Undo | None = None
 
     @property
     def id_next(self) -> int:
         return self.id_base + self.tracker.next_id
 
+    @property
+    def last_seq(self) -> int | None:
+        return None if self.last is None else self.last.seq
+
+    @property
+    def last_stamp_ns(self) -> int | None:
+        return None if self.last is None else self.last.stamp_ns
+
+    def keep_undo(self) -> None:
+        """Remember the sensor as it is, before a frame changes it (see ``undo_last``)."""
+        t = self.tracker
+        self._undo = _Undo(
+            t.tracks,
+            t.frame_count,
+            t.last_stamp,
+            self.id_base,
+            self.stamp_origin_ns,
+            self.last,
+            self.active_tracks,
+        )
+
+    def undo_last(self) -> int:
+        """Put the sensor back as it was before its last frame (a frame the wall clock
+        says was wrong); returns the change in active tracks. Ids born on the undone frame
+        stay used: the tracker's next id is kept past them."""
+        u = self._undo
+        if u is None:
+            raise RuntimeError("nothing to undo")
+        id_next = self.id_next
+        t = self.tracker
+        t.tracks, t.frame_count, t.last_stamp = u.tracks, u.frame_count, u.tracker_last_stamp
+        self.id_base, self.stamp_origin_ns, self.last = u.id_base, u.stamp_origin_ns, u.last
+        t.next_id = max(t.next_id, id_next - self.id_base)
+        self.before = self._undo = None
+        delta = u.active_tracks - self.active_tracks
+        self.active_tracks = u.active_tracks
+        self.dirty = True
+        return delta
+
     def reset(self, stamp_ns: int) -> None:
         """A fresh tracker whose time starts at ``stamp_ns`` and whose ids start above every
-        id published so far; the next frame is checked against nothing."""
+        id published so far. The last frame is kept: the undo rule may still need it."""
         self.id_base = self.id_next
         self.tracker.reset()
         self.stamp_origin_ns = stamp_ns
-        self.last_seq = self.last_stamp_ns = None
         self.active_tracks = 0
 
     def tracker_stamp(self, stamp_ns: int) -> float:
@@ -67,16 +133,17 @@ class SensorState:
             self.stamp_origin_ns = stamp_ns
         return (stamp_ns - self.stamp_origin_ns) * 1e-9
 
-    def tracked(self, seq: int, stamp_ns: int, active_tracks: int) -> int:
+    def tracked(self, frame: Arrival, active_tracks: int) -> int:
         """Record a tracked frame; returns the change in active tracks."""
         delta = active_tracks - self.active_tracks
         self.active_tracks = active_tracks
-        self.last_seq, self.last_stamp_ns = seq, stamp_ns
+        self.before, self.last = self.last, frame
         self.frames += 1
         self.dirty = True
         return delta
 
     def snapshot(self, digest: str, with_tracker: bool = True) -> SensorSnapshot:
+        last = self.last
         return SensorSnapshot(
             schema_version=SCHEMA_VERSION,
             vehicle=self.vehicle,
@@ -87,6 +154,8 @@ class SensorState:
             id_base=self.id_base if with_tracker else self.id_next,
             id_next=self.id_next,
             frames=self.frames,
+            last_received_ns=None if last is None else last.received_ns,
+            last_session_id=None if last is None else last.session_id,
             config_digest=digest,
             tracker=self.tracker.to_bytes() if with_tracker else None,
             written_ns=time.time_ns(),
@@ -98,21 +167,33 @@ class Order(Enum):
     """What to do with a frame of a sensor the service already holds."""
 
     TRACK = "track"
+    BRIDGE_GAP = "outage"  # a stamp gap the service's clock saw too: track across it
+    UNDO_LAST = "undo"  # the last frame disagreed with the wall clock, this one agrees
     RESET_GAP = "gap"  # value: the ``reason`` label of simpletrack_tracker_resets_total
     RESET_TIME_BACKWARDS = "time_backwards"
+    RESET_RESTART = "restart"  # a new publisher session whose stamps start at or before ours
     DUPLICATE_SEQ = "duplicate_seq"
     OUT_OF_ORDER = "out_of_order"
-    SEQ_NOT_INCREASING = "seq_not_increasing"
 
     @property
     def resets(self) -> bool:
-        return self in (Order.RESET_GAP, Order.RESET_TIME_BACKWARDS)
+        return self in RESETS
+
+    @property
+    def tracks(self) -> bool:
+        return self in (Order.TRACK, Order.BRIDGE_GAP)
+
+
+RESETS = frozenset({Order.RESET_GAP, Order.RESET_TIME_BACKWARDS, Order.RESET_RESTART})
 
 
 @dataclass(frozen=True, slots=True)
 class OrderRules:
-    reset_gap_s: float  # a stamp further ahead than this resets the tracker
+    reset_gap_s: float  # a stamp step this far ahead of the service's clock resets
     reset_backward_s: float  # a stamp further behind than this resets it (less: refused)
+    # How far a frame's stamp step may differ from the service's clock step and still count
+    # as agreeing with it (network jitter, bursts): only the undo rule reads it.
+    clock_tolerance_s: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,37 +209,77 @@ class Verdict:
 TRACK = Verdict(Order.TRACK)
 
 
+def lead_ns(ref: Arrival, frame: Arrival) -> int | None:
+    """How much further the sensor's clock moved from ``ref`` to ``frame`` than the
+    service's did; None when a receipt time is unknown. About 0 for a live stream, also
+    across an outage; a sensor clock jump shows as the jump."""
+    if ref.received_ns is None or frame.received_ns is None:
+        return None
+    return (frame.stamp_ns - ref.stamp_ns) - (frame.received_ns - ref.received_ns)
+
+
 def check_order(
-    last_seq: int | None, last_stamp_ns: int | None, seq: int, stamp_ns: int, rules: OrderRules
+    last: Arrival | None, frame: Arrival, rules: OrderRules, before: Arrival | None = None
 ) -> Verdict:
-    """Judge a frame against the sensor's last tracked one. The checks run in this order, so
-    that e.g. a replay restarted (seq and stamp both back) resets rather than being refused."""
-    if last_seq is None or last_stamp_ns is None:
+    """Judge a frame against the sensor's last tracked one (and the one ``before`` it, for
+    the undo rule). ``seq`` orders nothing: only an exact repeat is refused for it, so no
+    seq a frame carries, spoofed or restarted, can make later frames fail."""
+    if last is None:
         return TRACK
-    if seq == last_seq:
+    verdict = _against_last(last, frame, rules)
+    if before is None:
+        return verdict
+    # A frame of another session between two of one stream is undone even when it reset
+    # nothing; any other last frame only when this one could not follow it.
+    stray = last.session_id != before.session_id == frame.session_id
+    if (stray or not verdict.order.tracks) and _last_was_wrong(before, last, frame, rules):
+        return Verdict(Order.UNDO_LAST)
+    return verdict
+
+
+def _against_last(last: Arrival, frame: Arrival, rules: OrderRules) -> Verdict:
+    ahead = frame.stamp_ns - last.stamp_ns
+    if frame.session_id != last.session_id:  # a restarted publisher: its seq starts afresh
+        return _forward(last, frame, rules) if ahead > 0 else Verdict(Order.RESET_RESTART)
+    if frame.seq == last.seq and ahead <= 0:
         return Verdict(
             Order.DUPLICATE_SEQ,
             ErrorReason.DUPLICATE_SEQ,
             "seq",
-            f"seq {seq} was already processed",
+            f"seq {frame.seq} was already processed",
         )
-    behind = last_stamp_ns - stamp_ns
-    if behind > rules.reset_backward_s * 1e9:
+    if -ahead > rules.reset_backward_s * 1e9:
         return Verdict(Order.RESET_TIME_BACKWARDS)
-    if behind >= 0:
+    if ahead <= 0:
         return Verdict(
             Order.OUT_OF_ORDER,
             ErrorReason.OUT_OF_ORDER,
             "stamp_ns",
-            f"stamp_ns {stamp_ns} is not after the last processed {last_stamp_ns}",
+            f"stamp_ns {frame.stamp_ns} is not after the last processed {last.stamp_ns}",
         )
-    if seq < last_seq:
-        return Verdict(
-            Order.SEQ_NOT_INCREASING,
-            ErrorReason.SEQ_NOT_INCREASING,
-            "seq",
-            f"seq {seq} is below the last processed {last_seq}",
-        )
-    if -behind > rules.reset_gap_s * 1e9:
-        return Verdict(Order.RESET_GAP)
-    return TRACK
+    return _forward(last, frame, rules)
+
+
+def _forward(last: Arrival, frame: Arrival, rules: OrderRules) -> Verdict:
+    gap = rules.reset_gap_s * 1e9
+    if frame.stamp_ns - last.stamp_ns <= gap:
+        return TRACK
+    lead = lead_ns(last, frame)
+    if lead is not None and lead <= gap:  # the service was away as long: an outage
+        return Verdict(Order.BRIDGE_GAP)
+    return Verdict(Order.RESET_GAP)
+
+
+def _last_was_wrong(before: Arrival, last: Arrival, frame: Arrival, rules: OrderRules) -> bool:
+    """The last frame is to be undone when this one, of the stream before it, agrees with
+    the service's clock and the last one did not, or came from another session: one bad
+    frame then costs itself, never the frames after it."""
+    if frame.session_id != before.session_id or frame.stamp_ns <= before.stamp_ns:
+        return False
+    lead_frame, lead_last = lead_ns(before, frame), lead_ns(before, last)
+    if lead_frame is None or lead_last is None:
+        return False
+    tol = rules.clock_tolerance_s * 1e9
+    if abs(lead_frame) > tol:
+        return False
+    return last.session_id != before.session_id or abs(lead_last) > tol

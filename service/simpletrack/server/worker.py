@@ -20,11 +20,14 @@ from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import Outbox, congestion_control, dropped
 from simpletrack.server.registry import SensorRegistry
 from simpletrack.server.sensors import (
+    Arrival,
+    Order,
     OrderRules,
     SensorBudget,
     SensorState,
     Verdict,
     check_order,
+    lead_ns,
 )
 from simpletrack.server.settings import ServiceSettings
 from simpletrack.server.snapshots import SnapshotWriter
@@ -122,7 +125,7 @@ class Worker(threading.Thread):
         t0 = time.perf_counter()
         m.stage.labels(stage="queue").observe(t0 - item.received_at)
         vehicle, sensor = ctx.keys.sensor_of(item.key) or ("", "")
-        if not (NAME_RE.match(vehicle) and NAME_RE.match(sensor)):
+        if not (NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor)):
             # No errors key can be derived from a key like this: count and log only.
             m.count_error(ErrorReason.INVALID_VALUE, "")
             log.warning("frame_rejected", key=item.key, reason="invalid_value", field="key")
@@ -144,6 +147,7 @@ class Worker(threading.Thread):
             self._refuse(item, vehicle, sensor, state, r)
             return
 
+        arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
         if state is None:
             state = self.sensors.add(vehicle, sensor, seq)
             if state is None:
@@ -152,13 +156,25 @@ class Worker(threading.Thread):
                 self._refuse(item, vehicle, sensor, None, r)
                 return
         else:
-            verdict = check_order(state.last_seq, state.last_stamp_ns, seq, stamp_ns, self.rules)
+            verdict = check_order(state.last, arrival, self.rules, state.before)
+            if verdict.order is Order.UNDO_LAST:
+                self._undo(state, arrival)
+                verdict = check_order(state.last, arrival, self.rules)
             if verdict.reason is not None:
                 r = Rejection(verdict.reason, verdict.field, verdict.detail, seq, stamp_ns)
                 self._refuse(item, vehicle, sensor, state, r)
                 return
+            state.keep_undo()
             if verdict.order.resets:
                 self._reset(state, verdict, seq, stamp_ns)
+            elif verdict.order is Order.BRIDGE_GAP:
+                log.info(
+                    "gap_bridged",
+                    vehicle=vehicle,
+                    sensor=sensor,
+                    seq=seq,
+                    gap_s=round((stamp_ns - (state.last_stamp_ns or stamp_ns)) * 1e-9, 3),
+                )
 
         stamp = state.tracker_stamp(stamp_ns)
         state.last_seen = time.monotonic()
@@ -169,6 +185,7 @@ class Worker(threading.Thread):
             tracks = state.tracker.step(tframe)
         except Exception as e:
             log.error("tracker_failed", exc=True, vehicle=vehicle, sensor=sensor, seq=seq)
+            state.before = None  # what keep_undo holds is no longer the state before the last
             detail = f"tracker: {e}"[:300]
             r = Rejection(ErrorReason.INTERNAL_ERROR, None, detail, seq, stamp_ns)
             self._refuse(item, vehicle, sensor, state, r)
@@ -197,7 +214,7 @@ class Worker(threading.Thread):
         m.end_to_end.observe(max(0.0, (now_ns - stamp_ns) * 1e-9))
         m.service_latency.observe((now_ns - item.received_ns) * 1e-9)
         m.count_tracked(vehicle)
-        m.active_tracks.inc(state.tracked(seq, stamp_ns, len(wire)))
+        m.active_tracks.inc(state.tracked(arrival, len(wire)))
         log.debug(
             "frame_tracked",
             vehicle=vehicle,
@@ -206,6 +223,21 @@ class Worker(threading.Thread):
             boxes=len(decoded.boxes),
             tracks=len(wire),
             ms=round((t3 - t0) * 1e3, 3),
+        )
+
+    def _undo(self, s: SensorState, frame: Arrival) -> None:
+        """The last frame ran off the service's clock and this one, of the stream before
+        it, agrees with it: forget the last frame rather than refuse or reset on its word."""
+        undone, before = s.last, s.before
+        self.ctx.metrics.active_tracks.inc(s.undo_last())
+        lead = None if undone is None or before is None else lead_ns(before, undone)
+        log.warning(
+            "frame_undone",
+            vehicle=s.vehicle,
+            sensor=s.sensor,
+            seq=frame.seq,
+            undone_seq=None if undone is None else undone.seq,
+            undone_lead_s=None if lead is None else round(lead * 1e-9, 3),
         )
 
     def _reset(self, s: SensorState, verdict: Verdict, seq: int, stamp_ns: int) -> None:
@@ -237,12 +269,17 @@ class Worker(threading.Thread):
     ) -> None:
         if not counted:
             self.ctx.metrics.count_error(r.reason, vehicle)
-        self.outbox.refuse(vehicle, sensor, r, item.received_ns, held=state is not None)
+        try:
+            self.outbox.refuse(vehicle, sensor, r, item.received_ns, held=state is not None)
+        except ValueError as e:  # a notice that cannot be built: counted above, never a crash
+            log.warning(
+                "frame_rejected", key=item.key, reason=r.reason.value, unpublished=str(e)[:200]
+            )
 
     def _drop(self, item: Inbound, reason: ErrorReason, counted: bool = False) -> None:
         """Report a frame shed under load (its header is read, nothing else)."""
         vehicle, sensor = self.ctx.keys.sensor_of(item.key) or ("", "")
-        if not (NAME_RE.match(vehicle) and NAME_RE.match(sensor)):
+        if not (NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor)):
             if not counted:
                 self.ctx.metrics.count_error(reason, "")
             return
