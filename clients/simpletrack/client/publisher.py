@@ -16,7 +16,9 @@ Delivery: the publisher keeps its last ``cache_frames`` frames (100 by default: 
 once it can reach the vehicle again (a router outage). A frame published while no service is
 reachable is reported to ``on_undelivered`` (on the caller's thread, from ``publish()``) as
 held (still in the cache) and, if the outage outlasts the cache, again as lost; the counts
-are ``held`` and ``lost``, and ``delivering`` says whether a service is reachable now. Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors``
+are ``held`` and ``lost``, and ``delivering`` says whether a service is reachable now. A
+service recovers held frames only if it had heard from this publisher before the outage; one
+that first hears of it takes only its latest frame (the service's ``history_frames``). Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors``
 reach ``on_error`` (called on a Zenoh thread: keep it short) and the ``errors()`` iterator.
 """
 

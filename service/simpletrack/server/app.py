@@ -111,9 +111,9 @@ class Service:
             session,
             self.keys.all_detections,
             misses,
-            history=ext.HistoryConfig(detect_late_publishers=True, max_samples=s.history_frames)
-            if s.history_frames
-            else None,
+            # Without a cap, a service that first hears a vehicle's heartbeat takes its whole
+            # cache: frames a restored sensor already tracked, up to seconds old.
+            history=ext.HistoryConfig(max_samples=s.history_frames),
             recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
         )
         self._declared.append(subscriber.sample_miss_listener(misses.on_miss))

@@ -173,9 +173,9 @@ class ServiceSettings(BaseSettings):
         default=True,
         description="client mode: start not ready and wait for a router instead of exiting (false: exit as Zenoh does)",
     )
-    history_frames: Annotated[int, Field(ge=0, le=100_000)] = Field(
-        default=0,
-        description="frames per sensor asked back from a vehicle's cache when the service first sees it (0: none; keep <= the vehicles' cache_frames)",
+    history_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
+        default=1,
+        description="frames a vehicle's cache hands a service that first hears of it (start, restart): more replays frames a restored sensor may have tracked",
     )
     preset: PresetName = Field(
         default="kitti", description="tracker preset; its classes are the accepted class names"
