@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -104,3 +105,19 @@ def test_options_are_immutable() -> None:
     assert o.connect == ["tcp/127.0.0.1:7447"] and o.given == {"connect"}
     with pytest.raises(AttributeError):
         o.mode = ZenohMode.CLIENT  # type: ignore[misc]
+
+
+def test_a_lost_connection_is_retried_at_most_every_reconnect_max_ms(tmp_path: Path) -> None:
+    retry = json.loads(ZenohOptions(reconnect_max_ms=500).to_config().get_json("connect/retry"))
+    assert retry["period_max_ms"] == 500 and retry["period_init_ms"] <= 500
+    # Over a config file only an explicit value is laid: the file may set its own retry.
+    f = _file(tmp_path, '{mode: "peer", scouting: {multicast: {enabled: false}}}')
+    assert ZenohOptions(config_file=f).to_config().get_json("connect/retry") == "null"
+    with pytest.raises(ValueError, match="reconnect_max_ms"):
+        ZenohOptions(reconnect_max_ms=10)
+
+
+def test_a_config_file_can_make_a_session_a_client(tmp_path: Path) -> None:
+    f = _file(tmp_path, '{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7447"]}}')
+    assert ZenohOptions(config_file=f).is_client()
+    assert not ZenohOptions(config_file=f, mode=ZenohMode.PEER).is_client()

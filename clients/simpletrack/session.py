@@ -12,14 +12,20 @@ opens a port on every interface by accident. In client mode ``--connect`` names 
 ``--zenoh-config FILE`` starts from a Zenoh JSON5 config file instead (TLS/mTLS endpoints and
 certificates, access control, timeouts: see deploy/zenoh/); the explicit options above are laid
 over it only where given. ``connect_timeout_ms = -1`` makes a client wait for its router rather
-than fail at start.
+than fail at start; ``open_session_waiting`` waits too, but gives up when its caller says stop.
+
+A lost connection is retried every ``reconnect_max_ms`` at most: Zenoh's own back-off grows to
+4 s, which cost 3.6 s of frames after a 3 s router outage. ``RouterWatch`` tells which routers
+a session is connected to right now (readiness, metrics, delivery reports).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Iterable
+import threading
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
@@ -29,6 +35,10 @@ import zenoh
 
 ZENOH_ENDPOINT_HELP = "e.g. tcp/127.0.0.1:7447 (see Zenoh endpoint syntax)"
 ENDPOINT_LENGTH = (3, 256)
+# Retrying every second at most loses at most ~1 s after a router returns; a refused TCP
+# connect costs the router next to nothing, so a fleet retrying this often is affordable.
+DEFAULT_RECONNECT_MAX_MS = 1000
+RECONNECT_FIRST_MS = 100
 
 
 class ZenohMode(StrEnum):
@@ -82,6 +92,7 @@ class ZenohOptions:
     multicast_scouting: bool
     config_file: Path | None  # Zenoh JSON5 config to start from (TLS, access control)
     connect_timeout_ms: int | None  # -1: a client waits for its router forever
+    reconnect_max_ms: int  # longest wait between two attempts to (re)connect an endpoint
     given: frozenset[str] = field(init=False, compare=False, repr=False)
 
     def __init__(
@@ -93,6 +104,7 @@ class ZenohOptions:
         multicast_scouting: bool = _UNSET,
         config_file: Path | str | None = _UNSET,
         connect_timeout_ms: int | None = _UNSET,
+        reconnect_max_ms: int = _UNSET,
     ) -> None:
         args = {
             "mode": mode,
@@ -101,6 +113,7 @@ class ZenohOptions:
             "multicast_scouting": multicast_scouting,
             "config_file": config_file,
             "connect_timeout_ms": connect_timeout_ms,
+            "reconnect_max_ms": reconnect_max_ms,
         }
         given = frozenset(k for k, v in args.items() if v is not _UNSET)
         mode = ZenohMode.PEER if mode is _UNSET else _mode(mode)
@@ -119,6 +132,14 @@ class ZenohOptions:
                 raise ValueError("connect_timeout_ms: Input should be a valid integer")
             if connect_timeout_ms < -1:
                 raise ValueError("connect_timeout_ms: Input should be greater than or equal to -1")
+        if reconnect_max_ms is _UNSET:
+            reconnect_max_ms = DEFAULT_RECONNECT_MAX_MS
+        elif type(reconnect_max_ms) is not int:
+            raise ValueError("reconnect_max_ms: Input should be a valid integer")
+        elif reconnect_max_ms < RECONNECT_FIRST_MS:
+            raise ValueError(
+                f"reconnect_max_ms: Input should be greater than or equal to {RECONNECT_FIRST_MS}"
+            )
         check_roles(mode, listen, connect, multicast_scouting, path)
         for name, value in (
             ("mode", mode),
@@ -127,6 +148,7 @@ class ZenohOptions:
             ("multicast_scouting", multicast_scouting),
             ("config_file", path),
             ("connect_timeout_ms", connect_timeout_ms),
+            ("reconnect_max_ms", reconnect_max_ms),
             ("given", given),
         ):
             object.__setattr__(self, name, value)
@@ -159,7 +181,20 @@ class ZenohOptions:
             config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         if self.connect_timeout_ms is not None:
             config.insert_json5("connect/timeout_ms", json.dumps(self.connect_timeout_ms))
+        if self.config_file is None or "reconnect_max_ms" in self.given:
+            retry = {
+                "period_init_ms": RECONNECT_FIRST_MS,
+                "period_max_ms": self.reconnect_max_ms,
+                "period_increase_factor": 2,
+            }
+            config.insert_json5("connect/retry", json.dumps(retry))
         return config
+
+    def is_client(self) -> bool:
+        """True when the session will be a client of routers (also when a config file says so)."""
+        if "mode" in self.given or self.config_file is None:
+            return self.mode is ZenohMode.CLIENT
+        return bool(json.loads(self.to_config().get_json("mode")) == ZenohMode.CLIENT.value)
 
 
 def _mode(value: ZenohMode | str) -> ZenohMode:
@@ -245,6 +280,67 @@ def open_session(options: ZenohOptions | None = None, **kwargs: object) -> zenoh
         # Every option then counts as given (as the pydantic model did).
         options = replace(options, **cast(dict[str, Any], kwargs))
     return zenoh.open(options.to_config())
+
+
+def open_session_waiting(
+    options: ZenohOptions, stop: threading.Event, attempt_ms: int = 500
+) -> zenoh.Session | None:
+    """Open a session, trying again until it opens or ``stop`` is set (then None).
+
+    A client whose routers are all down fails at once; this keeps trying, ``attempt_ms`` per
+    try, so that a process started before its router comes up with it. The calling thread
+    runs Python between tries: signal handlers (SIGTERM) still run."""
+    while not stop.is_set():
+        config = options.to_config()
+        config.insert_json5("connect/timeout_ms", json.dumps(attempt_ms))
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError:
+            # A refused connect fails at once: pace the tries like a timed-out one.
+            stop.wait(attempt_ms / 1000)
+    return None
+
+
+class RouterWatch:
+    """The routers a session is connected to now, kept from Zenoh's transport events (a
+    router killed is gone within milliseconds; a hung one after the lease, 10 s by default).
+
+    ``on_change(connected, router_zid)`` runs on a Zenoh thread: keep it short."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        on_change: Callable[[bool, str], None] | None = None,
+    ) -> None:
+        self._lock = threading.Lock()
+        self._routers: set[str] = set()
+        self._on_change = on_change
+        self.changed_at = time.monotonic()
+        self._listener = session.info.declare_transport_events_listener(
+            self._on_event, history=True
+        )
+
+    def _on_event(self, event: zenoh.TransportEvent) -> None:
+        transport = event.transport
+        if transport.whatami != zenoh.WhatAmI.ROUTER:
+            return
+        zid = str(transport.zid)
+        up = event.kind == zenoh.SampleKind.PUT
+        with self._lock:
+            before = len(self._routers)
+            (self._routers.add if up else self._routers.discard)(zid)
+            if before != len(self._routers):
+                self.changed_at = time.monotonic()
+        if self._on_change is not None:
+            self._on_change(up, zid)
+
+    @property
+    def routers(self) -> int:
+        with self._lock:
+            return len(self._routers)
+
+    def undeclare(self) -> None:
+        self._listener.undeclare()  # type: ignore[no-untyped-call]
 
 
 class Congestion(StrEnum):

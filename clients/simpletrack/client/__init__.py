@@ -6,8 +6,15 @@ This package and what it imports (``simpletrack.wire``, ``simpletrack.session``)
 zenoh, msgpack and numpy: the light install (``pip install simpletrack``).
 """
 
-from simpletrack.client.publisher import Box, DetectionPublisher
+from simpletrack.client.publisher import Box, DetectionPublisher, Undelivered
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
 from simpletrack.session import ZenohOptions
 
-__all__ = ["Box", "DetectionPublisher", "TrackMessage", "TrackSubscriber", "ZenohOptions"]
+__all__ = [
+    "Box",
+    "DetectionPublisher",
+    "TrackMessage",
+    "TrackSubscriber",
+    "Undelivered",
+    "ZenohOptions",
+]

@@ -32,10 +32,14 @@ class ErrorReason(StrEnum):
     # Load shedding: the frame was valid as far as anyone looked, but not processed.
     DROPPED_QUEUE_FULL = "dropped_queue_full"  # backpressure drop_oldest: the oldest goes
     DROPPED_SHUTDOWN = "dropped_shutdown"  # arrived after intake stopped, or drain timed out
+    # Lost in transport (a router outage longer than the publisher's cache): never received.
+    MISSED = "missed"
     INTERNAL_ERROR = "internal_error"  # a bug: reported rather than crashing the worker
 
 
-DROP_REASONS = frozenset({ErrorReason.DROPPED_QUEUE_FULL, ErrorReason.DROPPED_SHUTDOWN})
+DROP_REASONS = frozenset(
+    {ErrorReason.DROPPED_QUEUE_FULL, ErrorReason.DROPPED_SHUTDOWN, ErrorReason.MISSED}
+)
 
 
 class WireTrackState(IntEnum):

@@ -1,8 +1,9 @@
 """The running service: wires Zenoh, the intake, the workers, snapshots and metrics together,
 and owns the start-up and shutdown order.
 
-Start: metrics HTTP → Zenoh session → restore snapshots → workers → subscriber, queryables,
-liveliness token → ready. Stop (SIGTERM/SIGINT): not ready → undeclare the subscriber (no new
+Start: metrics HTTP → Zenoh session (a client started before its router waits for it, not
+ready) → restore snapshots → workers → subscriber, queryables, liveliness token → ready. A
+client is ready only while it is connected to a router. Stop (SIGTERM/SIGINT): not ready → undeclare the subscriber (no new
 frames) → workers finish their queues (bounded by ``shutdown_timeout_s``) and snapshot every
 sensor → snapshot writer flushes → session closed → HTTP closed.
 """
@@ -18,17 +19,19 @@ from types import FrameType
 from typing import Any
 
 import zenoh
+from zenoh import ext
 
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.intake import Inbound, Intake, WorkQueue, depth, worker_index
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
+from simpletrack.server.misses import MissCounter
 from simpletrack.server.outbox import MSGPACK, dropped, frame_error, put
 from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all
 from simpletrack.server.worker import NAME_RE, Context, Worker
-from simpletrack.session import open_session
+from simpletrack.session import RouterWatch, open_session, open_session_waiting
 from simpletrack.wire.codec import DecodeLimits, encode
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import ServiceStatus
@@ -55,6 +58,9 @@ class Service:
         self._workers: list[Worker] = []
         self._queues: list[WorkQueue] = []
         self._declared: list[Any] = []  # subscriber, queryables, token: undeclared in order
+        self._client = settings.zenoh.options().is_client()
+        self._routers: RouterWatch | None = None
+        self.misses: MissCounter | None = None
         self.http_port: int | None = None
 
     # ------------------------------------------------------------------ start
@@ -64,7 +70,12 @@ class Service:
             self._http = HttpEndpoint(self.metrics, s.metrics_host, s.metrics_port, self.ready)
             self._http.start()
             self.http_port = self._http.port
-        self._session = session = open_session(s.zenoh.options())
+        session = self._open_session()
+        if session is None:
+            return  # asked to stop while waiting for the router
+        self._session = session
+        self._routers = RouterWatch(session, self._on_router_change)
+        self.metrics.routers.set_function(self._routers_connected)
         if s.state_dir is not None:
             s.state_dir.mkdir(parents=True, exist_ok=True)
             self._writer = SnapshotWriter()
@@ -93,7 +104,20 @@ class Service:
             w.start()
 
         intake = Intake(self._queues, s.backpressure, self._on_received, self._on_dropped)
-        self._declared.append(session.declare_subscriber(self.keys.all_detections, intake))
+        self.misses = misses = MissCounter(intake, self.keys, self.metrics, s.instance, session)
+        # Recovery asks a vehicle's cache for the frames a gap (or its heartbeat) shows were
+        # missed and holds that vehicle's later frames until they come: order is kept.
+        subscriber = ext.declare_advanced_subscriber(
+            session,
+            self.keys.all_detections,
+            misses,
+            # Without a cap, a service that first hears a vehicle's heartbeat takes its whole
+            # cache: frames a restored sensor already tracked, up to seconds old.
+            history=ext.HistoryConfig(max_samples=s.history_frames),
+            recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
+        )
+        self._declared.append(subscriber.sample_miss_listener(misses.on_miss))
+        self._declared.append(subscriber)
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )
@@ -101,6 +125,8 @@ class Service:
             session.declare_queryable(self.keys.snapshot(s.instance), self._on_snapshot_query)
         )
         self._declared.append(session.liveliness().declare_token(self.keys.liveliness(s.instance)))
+        if self._routers is not None:
+            self._declared.append(self._routers)
         self._ready = True
         log.info(
             "service_started",
@@ -118,6 +144,26 @@ class Service:
             restored=sum(len(w.sensors) for w in self._workers),
         )
 
+    def _open_session(self) -> zenoh.Session | None:
+        options = self.settings.zenoh.options()
+        if not (self._client and self.settings.wait_for_router):
+            return open_session(options)
+        log.info("waiting_for_router", connect=",".join(options.connect))
+        session = open_session_waiting(options, self.stop_requested)
+        if session is not None:
+            log.info("router_reached", connect=",".join(options.connect))
+        return session
+
+    def _routers_connected(self) -> int:
+        return self._routers.routers if self._routers is not None else 0
+
+    def _on_router_change(self, connected: bool, router: str) -> None:
+        if connected:
+            log.info("router_connected", router=router, routers=self._routers_connected())
+        else:
+            self.metrics.router_losses.inc()
+            log.warning("router_lost", router=router, routers=self._routers_connected())
+
     def _metrics_functions(self) -> None:
         m = self.metrics
         m.queue_depth.set_function(lambda: depth(self._queues))
@@ -130,7 +176,11 @@ class Service:
             )
 
     def ready(self) -> bool:
-        return self._ready and self._session is not None and not self._session.is_closed()
+        if not self._ready or self._session is None or self._session.is_closed():
+            return False
+        # A client without a router receives nothing: not ready, so that traffic and alerts
+        # see the outage.
+        return not self._client or self._routers_connected() > 0
 
     # ------------------------------------------------------------------ callbacks
     def _on_received(self, key: str) -> None:

@@ -78,7 +78,7 @@ class Metrics:
         )
         self.dropped = Counter(
             "simpletrack_frames_dropped",
-            "Frames shed under load, by reason (also published on the errors key)",
+            "Frames shed under load or missed in transport, by reason (also published on the errors key)",
             ("reason", *v),
             registry=r,
         )
@@ -138,6 +138,16 @@ class Metrics:
         self.boxes_ignored = Counter(
             "simpletrack_boxes_ignored", "Boxes of classes listed in ignore_classes", registry=r
         )
+        self.routers = Gauge(
+            "simpletrack_zenoh_routers",
+            "Zenoh routers this service is connected to now (client mode: 0 means not ready)",
+            registry=r,
+        )
+        self.router_losses = Counter(
+            "simpletrack_zenoh_router_disconnects",
+            "Times a connection to a Zenoh router was lost",
+            registry=r,
+        )
         self.build = Info("simpletrack_build", "Versions of this service", registry=r)
         self.build.info(
             {
@@ -172,6 +182,9 @@ class Metrics:
     def count_tracked(self, vehicle: str) -> None:
         labels = self.labels(vehicle)
         (self.tracked.labels(**labels) if labels else self.tracked).inc()
+
+    def count_missed(self, vehicle: str, n: int) -> None:
+        self.dropped.labels(reason=ErrorReason.MISSED.value, **self.labels(vehicle)).inc(n)
 
     def count_error(self, reason: ErrorReason, vehicle: str) -> None:
         metric = self.dropped if reason in DROP_REASONS else self.rejected

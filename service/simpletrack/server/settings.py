@@ -47,7 +47,9 @@ from simpletrack.server.tracker_settings import (
 )
 from simpletrack.session import (
     DEFAULT_LISTEN,
+    DEFAULT_RECONNECT_MAX_MS,
     ENDPOINT_LENGTH,
+    RECONNECT_FIRST_MS,
     Congestion,
     ZenohMode,
     ZenohOptions,
@@ -113,6 +115,11 @@ class ZenohSettings(BaseModel):
         ge=-1,
         description="how long to try the connect endpoints at start (-1: wait for the router forever)",
     )
+    reconnect_max_ms: int = Field(
+        default=DEFAULT_RECONNECT_MAX_MS,
+        ge=RECONNECT_FIRST_MS,
+        description="longest wait between two tries to (re)connect an endpoint (Zenoh's own grows to 4 s)",
+    )
 
     @field_validator("listen", "connect")
     @classmethod
@@ -161,6 +168,14 @@ class ServiceSettings(BaseSettings):
     zenoh: ZenohSettings = Field(
         default_factory=lambda: ZenohSettings(),
         description="Zenoh session (flags --mode/--listen/--connect)",
+    )
+    wait_for_router: bool = Field(
+        default=True,
+        description="client mode: start not ready and wait for a router instead of exiting (false: exit as Zenoh does)",
+    )
+    history_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
+        default=1,
+        description="frames a vehicle's cache hands a service that first hears of it (start, restart): more replays frames a restored sensor may have tracked",
     )
     preset: PresetName = Field(
         default="kitti", description="tracker preset; its classes are the accepted class names"

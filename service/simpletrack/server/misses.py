@@ -1,0 +1,106 @@
+"""Frames lost in transport: the advanced subscriber recovers what it can from a vehicle's
+cache; what it cannot is counted per sensor and announced on the sensor's errors key.
+
+Zenoh reports a miss by publisher (its entity id), not by key: the subscriber callback
+notes which key each publisher publishes on, so that a miss can be told to its sensor.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+from zenoh import ext
+
+from simpletrack.server.logs import get_logger
+from simpletrack.server.metrics import Metrics
+from simpletrack.server.outbox import put
+from simpletrack.wire.codec import encode
+from simpletrack.wire.keys import Keys
+from simpletrack.wire.models import FrameError
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+log = get_logger("service")
+
+Source = tuple[str, int]  # (zenoh id, entity id) of a publisher
+
+
+def source_of(sample: zenoh.Sample) -> Source | None:
+    info = sample.source_info
+    if info is None or info.source_id is None:
+        return None  # a plain publisher: no sequence numbers, nothing to miss
+    sid = info.source_id
+    return str(sid.zid), int(sid.eid)
+
+
+class MissCounter:
+    """Wraps the intake callback to learn publishers' keys; ``on_miss`` counts, logs and
+    announces frames that could not be recovered."""
+
+    def __init__(
+        self,
+        intake: Callable[[zenoh.Sample], None],
+        keys: Keys,
+        metrics: Metrics,
+        instance: str,
+        session: zenoh.Session,
+    ) -> None:
+        self._intake = intake
+        self._keys = keys
+        self._metrics = metrics
+        self._instance = instance
+        self._session = session
+        self._keys_of: dict[Source, str] = {}
+        self._lock = threading.Lock()
+        self.by_sensor: dict[tuple[str, str], int] = {}
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        source = source_of(sample)
+        if source is not None and source not in self._keys_of:
+            # Written once per publisher; reads elsewhere tolerate a missing entry.
+            self._keys_of[source] = str(sample.key_expr)
+        self._intake(sample)
+
+    def missed(self, vehicle: str, sensor: str) -> int:
+        with self._lock:
+            return self.by_sensor.get((vehicle, sensor), 0)
+
+    def on_miss(self, miss: ext.Miss) -> None:
+        source = (str(miss.source.zid), int(miss.source.eid))
+        key = self._keys_of.get(source)
+        sensor = self._keys.sensor_of(key) if key is not None else None
+        if sensor is None:
+            # Nothing received from this publisher yet: no sensor to charge it to.
+            self._metrics.count_missed("", miss.nb)
+            log.warning("frames_missed", source=f"{source[0]}/{source[1]}", missed=miss.nb)
+            return
+        vehicle, name = sensor
+        with self._lock:
+            total = self.by_sensor[sensor] = self.by_sensor.get(sensor, 0) + miss.nb
+        self._metrics.count_missed(vehicle, miss.nb)
+        log.warning("frames_missed", vehicle=vehicle, sensor=name, missed=miss.nb, total=total)
+        err = FrameError(
+            schema_version=SCHEMA_VERSION,
+            vehicle=vehicle,
+            sensor=name,
+            reason=ErrorReason.MISSED,
+            detail=f"{miss.nb} frames lost in transport and not in the publisher's cache"
+            f" ({total} on this sensor since the service started)",
+            instance=self._instance,
+            received_ns=time.time_ns(),
+        )
+        try:
+            # DROP: this runs on Zenoh's miss-listener thread, which must never block.
+            put(
+                self._session,
+                self._keys.errors(vehicle, name),
+                encode(err),
+                zenoh.CongestionControl.DROP,
+            )
+        except zenoh.ZError as e:
+            log.warning("miss_announce_failed", vehicle=vehicle, sensor=name, error=str(e))
+
+
+__all__ = ["MissCounter", "source_of"]
