@@ -241,7 +241,7 @@ def test_hungarian_frames_under_the_dense_cap_are_solved_on_the_full_matrix(
 
 
 # ---------------------------------------------------------------- the heavy frame
-STEP_PEAK_LIMIT_MB = 400  # measured 181 MB (docs/BENCHMARKS.md, heavy frames)
+STEP_PEAK_LIMIT_MB = 400  # measured 100-181 MB (python -m simpletrack.bench.heavy 10000)
 
 
 def test_a_ten_thousand_box_frame_steps_in_bounded_memory() -> None:

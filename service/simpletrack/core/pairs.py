@@ -25,10 +25,11 @@ from simpletrack.core.config import ClassConfig, Metric
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-# Largest (detections x tracks) block of one class solved dense: 2^18 pairs cost about
-# 0.1 s of distances and a 2 MB matrix (clients/simpletrack/bench/heavy.py), so a worker is
-# never held long by the dense path; past it time and memory grow with the gated pairs.
-DENSE_CELLS = 1 << 18
+# Largest (detections x tracks) block of one class solved dense. nuScenes' largest is about
+# 9,000 pairs, KITTI's far less; 2^16 pairs cost some 40 ms of distances and a 0.5 MB matrix
+# (a 1,000-box frame: 43 ms with it, 200 ms with 2^18; clients/simpletrack/bench/heavy.py),
+# so the dense path never holds a worker long; past it cost grows with the gated pairs.
+DENSE_CELLS = 1 << 16
 
 # The supremum of each bounded metric's distance: 1 - IoU <= 1, 1 - GIoU < 2.
 _RANGE = {Metric.IOU_3D: 1.0, Metric.IOU_BEV: 1.0, Metric.GIOU_3D: 2.0, Metric.GIOU_BEV: 2.0}
