@@ -105,7 +105,7 @@ def test_gate_lists_far_fewer_pairs_than_all_on_a_street_scene() -> None:
 @given(seed=st.integers(0, 2**32 - 1), spread=st.sampled_from([0.5, 5.0, 50.0, 5e4]))
 def test_grid_nms_pairs_are_every_overlapping_same_class_pair(seed: int, spread: float) -> None:
     rng = np.random.default_rng(seed)
-    p = random_boxes(rng, int(rng.integers(1, 80)), spread)
+    p = random_boxes(rng, int(rng.integers(190, 400)), spread)  # over the all-pairs cutoff
     p[:, :2] += 1e6  # far from the origin: cell keys must stay exact
     cls = rng.integers(0, 4, len(p))
     rows, cols, iou = iou_3d_pairs(p, p, groups_a=cls, groups_b=cls)

@@ -48,14 +48,16 @@ def far_cost(c: ClassConfig) -> float:
 class PairTable:
     """Listed (detection row, track) pairs, row-major, with their distances; pairs not listed
     are of different classes or, in a gated class (``dense[code]`` false), provably beyond
-    both stages' thresholds."""
+    both stages' thresholds. An ordinary frame (every class dense) carries the full
+    (detections, tracks) ``matrix`` instead (other classes +inf), as it always did."""
 
     rows: I64
     cols: I64
     dist: F64
     dense: npt.NDArray[np.bool_]
+    matrix: F64 | None = None
 
     @classmethod
-    def empty(cls, dense: npt.NDArray[np.bool_]) -> PairTable:
+    def empty(cls, dense: npt.NDArray[np.bool_], matrix: F64 | None = None) -> PairTable:
         none = np.zeros(0, dtype=np.int64)
-        return cls(rows=none, cols=none.copy(), dist=np.zeros(0), dense=dense)
+        return cls(rows=none, cols=none.copy(), dist=np.zeros(0), dense=dense, matrix=matrix)

@@ -191,6 +191,10 @@ class Tracker:
         per_det = np.bincount(d_cls, minlength=n_cls)
         per_trk = np.bincount(t_cls, minlength=n_cls)
         dense = per_det * per_trk <= DENSE_CELLS
+        if dense.all() and d_cls.size * t_cls.size <= 4 * DENSE_CELLS:
+            return PairTable.empty(
+                dense, matrix=self._dense_table(d_params, d_cls, t_cls, pred, p_pred)
+            )
         rows: list[I64] = []
         cols: list[I64] = []
         for code in np.flatnonzero(dense & (per_det > 0) & (per_trk > 0)).tolist():
@@ -238,6 +242,33 @@ class Tracker:
             )
         return PairTable(rows=r, cols=c, dist=dist, dense=dense)
 
+    def _dense_table(
+        self,
+        d_params: F64,
+        d_cls: npt.NDArray[np.int32],
+        t_cls: npt.NDArray[np.int32],
+        pred: F64,
+        p_pred: F64,
+    ) -> F64:
+        """The ordinary frame's table: every same-class pair, other pairs +inf."""
+        table = np.full((d_cls.size, t_cls.size), np.inf)
+        ia, ib = np.nonzero(d_cls[:, None] == t_cls[None, :])
+        pair_metric = self._metric_code[d_cls[ia]]
+        for m in np.unique(pair_metric).tolist():
+            metric = _METRICS[m]
+            sel = np.flatnonzero(pair_metric == m)
+            innovation = self._kf.innovation(p_pred) if metric is Metric.MAHALANOBIS else None
+            table[ia[sel], ib[sel]] = geometry.distance_pairs(
+                metric,
+                d_params,
+                pred,
+                ia[sel],
+                ib[sel],
+                vertical=self.config.vertical_overlap,
+                innovation=innovation,
+            )
+        return table
+
     def _stage1(
         self,
         det_cls: npt.NDArray[np.int32],
@@ -257,6 +288,14 @@ class Tracker:
             c = self.config.for_code(code)
             in_class = d_cls == code
             t_idx = np.flatnonzero(trk_cls == code)
+            if table.matrix is not None:
+                block = table.matrix[np.ix_(cand_rows[in_class], t_idx)]
+                a: Assignment = assign(block, c.max_distance, c.matcher)
+                d_idx = cand[in_class]
+                md.append(d_idx[a.det])
+                mt.append(t_idx[a.track])
+                um.append(d_idx[a.unmatched_dets])
+                continue
             # Pool row -> position among the class's candidates; track -> column in its block.
             local_row = np.full(max(n_rows, int(table.rows.max(initial=-1)) + 1), -1, np.int64)
             local_row[cand_rows[in_class]] = np.arange(int(in_class.sum()))
@@ -269,7 +308,7 @@ class Tracker:
             if table.dense[code]:
                 block = np.full(shape, np.inf)
                 block[pr, pc] = pd
-                a: Assignment = assign(block, c.max_distance, c.matcher)
+                a = assign(block, c.max_distance, c.matcher)
             else:
                 a = assign_pairs(pr, pc, pd, shape, c.max_distance, c.matcher, self._far_cost[code])
             d_idx = cand[in_class]
@@ -296,6 +335,12 @@ class Tracker:
         eligible = update == UpdateKind.COASTED
         if key:
             eligible &= self._two_stage[trk_cls]
+        if table.matrix is not None:
+            t_idx = np.flatnonzero(eligible)
+            if t_idx.size == 0 or low_rows.size == 0:
+                return np.zeros(0, dtype=np.int64)
+            near = table.matrix[np.ix_(low_rows, t_idx)] <= self._stage2_max[trk_cls[t_idx]]
+            return t_idx[near.any(axis=0)].astype(np.int64)
         if not eligible.any() or low_rows.size == 0 or table.rows.size == 0:
             return np.zeros(0, dtype=np.int64)
         is_low = np.zeros(int(max(low_rows.max(), table.rows.max())) + 1, dtype=bool)
