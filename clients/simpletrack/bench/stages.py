@@ -29,6 +29,7 @@ TARGETS: tuple[tuple[str, str, str], ...] = (
     ("cost_matrix", "simpletrack.core.tracker", "Tracker._distance_table"),
     ("cost_matrix", "simpletrack.core.geometry", "distance_pairs"),
     ("assignment", "simpletrack.core.tracker", "assign"),
+    ("assignment", "simpletrack.core.tracker", "assign_pairs"),
     ("update", "simpletrack.core.motion", "KalmanFilter.update"),
     ("update", "simpletrack.core.motion", "ConstantVelocity.update"),
     ("lifecycle", "simpletrack.core.tracker", "Tracker._transition"),

@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from simpletrack.core.boxes import YAW, H, L, W, X, Y, Z
 from simpletrack.core.config import Metric, VerticalOverlap
+from simpletrack.core.gate import circumradius, grid_pairs, overlap_keep
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -183,29 +184,38 @@ def _areas(p: F64) -> F64:
     return np.asarray(p[:, L] * p[:, W], dtype=np.float64)
 
 
+def _gate_all_pairs(pa: F64, pb: F64, ga: I64 | None, gb: I64 | None) -> tuple[I64, I64]:
+    """``_gate`` by testing every pair at once (the same predicate, the same pairs)."""
+    ra, rb = circumradius(pa), circumradius(pb)
+    d2 = np.square(pa[:, None, X] - pb[None, :, X])
+    d2 += np.square(pa[:, None, Y] - pb[None, :, Y])
+    reach = ra[:, None] + rb[None, :]
+    reach *= reach
+    near = d2 <= reach * (1.0 + _GATE_SLACK)
+    if ga is not None and gb is not None:
+        near &= ga[:, None] == gb[None, :]
+    i, j = np.nonzero(near)
+    return i.astype(np.int64), j.astype(np.int64)
+
+
 def _gate(pa: F64, pb: F64, ga: I64 | None, gb: I64 | None) -> tuple[I64, I64]:
     """Pairs (row-major) whose circumscribed circles meet, the only ones that can intersect;
-    with group labels, only pairs within a group. Row blocks bound the temporaries."""
-    ra = np.hypot(pa[:, L], pa[:, W]) / 2
-    rb = np.hypot(pb[:, L], pb[:, W]) / 2
-    rows = max(1, _CHUNK // max(pb.shape[0], 1))
-    found: list[tuple[I64, I64]] = []
-    for r0 in range(0, pa.shape[0], rows):
-        a = pa[r0 : r0 + rows]
-        d2 = np.square(a[:, None, X] - pb[None, :, X])
-        d2 += np.square(a[:, None, Y] - pb[None, :, Y])
-        reach = ra[r0 : r0 + rows, None] + rb[None, :]
-        reach *= reach
-        near = d2 <= reach * (1.0 + _GATE_SLACK)
-        if ga is not None and gb is not None:
-            near &= ga[r0 : r0 + rows, None] == gb[None, :]
-        i, j = np.nonzero(near)
-        found.append((i + r0, j))
-    if len(found) == 1:
-        return found[0]
-    if not found:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    return np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+    with group labels, only pairs within a group. Found on a BEV grid (core/gate.py): near-
+    linear in the boxes, the same pairs as the all-pairs test."""
+    if pa.shape[0] * pb.shape[0] <= _CHUNK:
+        return _gate_all_pairs(pa, pb, ga, gb)  # small frames: one block is cheaper
+    if ga is None or gb is None:
+        ga, gb = np.zeros(pa.shape[0], np.int64), np.zeros(pb.shape[0], np.int64)
+    else:
+        _, codes = np.unique(np.concatenate([ga, gb]), return_inverse=True)
+        ga, gb = codes[: pa.shape[0]].astype(np.int64), codes[pa.shape[0] :].astype(np.int64)
+    keep, _ = overlap_keep(pa, pb, _GATE_SLACK)
+    groups = int(max(ga.max(initial=0), gb.max(initial=0))) + 1
+    widest = np.zeros(groups)
+    np.maximum.at(widest, ga, circumradius(pa))
+    np.maximum.at(widest, gb, circumradius(pb))
+    cell = 2.0 * widest * np.sqrt(1.0 + _GATE_SLACK) * (1.0 + 1e-6)
+    return grid_pairs(pa[:, X : Y + 1], ga, pb[:, X : Y + 1], gb, cell, keep)
 
 
 def _gated_intersection(

@@ -10,14 +10,15 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core import geometry
-from simpletrack.core.association import Assignment, assign
+from simpletrack.core import gate, geometry
+from simpletrack.core.association import Assignment, assign, assign_pairs
 from simpletrack.core.boxes import F64, YAW, Boxes, transform_boxes
 from simpletrack.core.config import Metric, MotionModel, OutputPolicy, TrackerConfig
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
 from simpletrack.core.nms import drop_degenerate, nms
+from simpletrack.core.pairs import DENSE_CELLS, PairTable, far_cost
 from simpletrack.core.state import TrackTable, pack, unpack
 
 STATE_FORMAT = 1
@@ -43,6 +44,14 @@ class Tracker:
         self._metric_code = np.array(
             [_METRICS.index(config.for_code(c).metric) for c in codes], dtype=np.int64
         )
+        # One table serves both stages: a gated class lists what either could accept.
+        self._gate_distance = np.array(
+            [
+                max(config.for_code(c).max_distance, config.for_code(c).stage2_max_distance)
+                for c in codes
+            ]
+        )
+        self._far_cost = [far_cost(config.for_code(c)) for c in codes]
         self.reset()
 
     def reset(self) -> None:
@@ -172,9 +181,76 @@ class Tracker:
         t_cls: npt.NDArray[np.int32],
         pred: F64,
         p_pred: F64,
+    ) -> PairTable:
+        """(detection, track) distances of same-class pairs, all classes in one call per metric
+        (pairs of different classes never match). A class whose block has at most
+        ``DENSE_CELLS`` pairs lists every pair, as the dense assignment needs; a larger one
+        lists only the pairs the exact gate (core/gate.py) cannot rule out for either stage,
+        so its cost grows with the pairs near each other, not with their product."""
+        n_cls = len(self.config.classes)
+        per_det = np.bincount(d_cls, minlength=n_cls)
+        per_trk = np.bincount(t_cls, minlength=n_cls)
+        dense = per_det * per_trk <= DENSE_CELLS
+        if dense.all() and d_cls.size * t_cls.size <= 4 * DENSE_CELLS:
+            return PairTable.empty(
+                dense, matrix=self._dense_table(d_params, d_cls, t_cls, pred, p_pred)
+            )
+        rows: list[I64] = []
+        cols: list[I64] = []
+        for code in np.flatnonzero(dense & (per_det > 0) & (per_trk > 0)).tolist():
+            di, ti = np.flatnonzero(d_cls == code), np.flatnonzero(t_cls == code)
+            rows.append(np.repeat(di, ti.size))
+            cols.append(np.tile(ti, di.size))
+        det_sparse, trk_sparse = ~dense[d_cls], ~dense[t_cls]
+        if det_sparse.any() and trk_sparse.any():
+            di, ti = np.flatnonzero(det_sparse), np.flatnonzero(trk_sparse)
+            s_gated = self._kf.innovation(p_pred[ti])
+            for m in np.unique(self._metric_code[d_cls[di]]).tolist():
+                metric = _METRICS[m]
+                dm = di[self._metric_code[d_cls[di]] == m]
+                ia, ib = gate.association_pairs(
+                    metric,
+                    d_params[dm],
+                    d_cls[dm].astype(np.int64),
+                    pred[ti],
+                    t_cls[ti].astype(np.int64),
+                    self._gate_distance,
+                    vertical=self.config.vertical_overlap,
+                    innovation=s_gated if metric is Metric.MAHALANOBIS else None,
+                )
+                rows.append(dm[ia])
+                cols.append(ti[ib])
+        if not rows:
+            return PairTable.empty(dense)
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        order = np.argsort(r * max(t_cls.size, 1) + c, kind="stable")
+        r, c = r[order], c[order]
+        dist = np.empty(r.size)
+        pair_metric = self._metric_code[d_cls[r]]
+        for m in np.unique(pair_metric).tolist():
+            metric = _METRICS[m]
+            sel = np.flatnonzero(pair_metric == m)
+            innovation = self._kf.innovation(p_pred) if metric is Metric.MAHALANOBIS else None
+            dist[sel] = geometry.distance_pairs(
+                metric,
+                d_params,
+                pred,
+                r[sel],
+                c[sel],
+                vertical=self.config.vertical_overlap,
+                innovation=innovation,
+            )
+        return PairTable(rows=r, cols=c, dist=dist, dense=dense)
+
+    def _dense_table(
+        self,
+        d_params: F64,
+        d_cls: npt.NDArray[np.int32],
+        t_cls: npt.NDArray[np.int32],
+        pred: F64,
+        p_pred: F64,
     ) -> F64:
-        """(detections, tracks) distances: every same-class pair computed, all classes in one
-        call per metric; pairs of different classes are +inf (they never match)."""
+        """The ordinary frame's table: every same-class pair, other pairs +inf."""
         table = np.full((d_cls.size, t_cls.size), np.inf)
         ia, ib = np.nonzero(d_cls[:, None] == t_cls[None, :])
         pair_metric = self._metric_code[d_cls[ia]]
@@ -199,10 +275,12 @@ class Tracker:
         cand: I64,
         cand_rows: I64,
         trk_cls: npt.NDArray[np.int32],
-        table: F64,
+        table: PairTable,
     ) -> tuple[I64, I64, I64]:
-        """Class by class (a detection never matches a track of another class)."""
+        """Class by class (a detection never matches a track of another class). A dense class
+        is solved on its full block, as it always was; a gated one from its listed pairs."""
         d_cls = det_cls[cand]
+        n_rows = int(cand_rows.max(initial=-1)) + 1
         md: list[I64] = []
         mt: list[I64] = []
         um: list[I64] = []
@@ -210,8 +288,29 @@ class Tracker:
             c = self.config.for_code(code)
             in_class = d_cls == code
             t_idx = np.flatnonzero(trk_cls == code)
-            block = table[np.ix_(cand_rows[in_class], t_idx)]
-            a: Assignment = assign(block, c.max_distance, c.matcher)
+            if table.matrix is not None:
+                block = table.matrix[np.ix_(cand_rows[in_class], t_idx)]
+                a: Assignment = assign(block, c.max_distance, c.matcher)
+                d_idx = cand[in_class]
+                md.append(d_idx[a.det])
+                mt.append(t_idx[a.track])
+                um.append(d_idx[a.unmatched_dets])
+                continue
+            # Pool row -> position among the class's candidates; track -> column in its block.
+            local_row = np.full(max(n_rows, int(table.rows.max(initial=-1)) + 1), -1, np.int64)
+            local_row[cand_rows[in_class]] = np.arange(int(in_class.sum()))
+            local_col = np.full(trk_cls.size, -1, dtype=np.int64)
+            local_col[t_idx] = np.arange(t_idx.size)
+            lr = local_row[table.rows] if table.rows.size else table.rows
+            sel = np.flatnonzero((lr >= 0) & (local_col[table.cols] >= 0))
+            shape = (int(in_class.sum()), t_idx.size)
+            pr, pc, pd = lr[sel], local_col[table.cols[sel]], table.dist[sel]
+            if table.dense[code]:
+                block = np.full(shape, np.inf)
+                block[pr, pc] = pd
+                a = assign(block, c.max_distance, c.matcher)
+            else:
+                a = assign_pairs(pr, pc, pd, shape, c.max_distance, c.matcher, self._far_cost[code])
             d_idx = cand[in_class]
             md.append(d_idx[a.det])
             mt.append(t_idx[a.track])
@@ -227,7 +326,7 @@ class Tracker:
         self,
         low_rows: I64,
         trk_cls: npt.NDArray[np.int32],
-        table: F64,
+        table: PairTable,
         update: npt.NDArray[np.int8],
         key: bool,
     ) -> I64:
@@ -236,11 +335,19 @@ class Tracker:
         eligible = update == UpdateKind.COASTED
         if key:
             eligible &= self._two_stage[trk_cls]
-        t_idx = np.flatnonzero(eligible)
-        if t_idx.size == 0 or low_rows.size == 0:
+        if table.matrix is not None:
+            t_idx = np.flatnonzero(eligible)
+            if t_idx.size == 0 or low_rows.size == 0:
+                return np.zeros(0, dtype=np.int64)
+            near = table.matrix[np.ix_(low_rows, t_idx)] <= self._stage2_max[trk_cls[t_idx]]
+            return t_idx[near.any(axis=0)].astype(np.int64)
+        if not eligible.any() or low_rows.size == 0 or table.rows.size == 0:
             return np.zeros(0, dtype=np.int64)
-        near = table[np.ix_(low_rows, t_idx)] <= self._stage2_max[trk_cls[t_idx]]
-        return t_idx[near.any(axis=0)].astype(np.int64)
+        is_low = np.zeros(int(max(low_rows.max(), table.rows.max())) + 1, dtype=bool)
+        is_low[low_rows] = True
+        r, c = table.rows, table.cols
+        near = is_low[r] & eligible[c] & (table.dist <= self._stage2_max[trk_cls[c]])
+        return np.unique(c[near]).astype(np.int64)
 
     def _transition(
         self,

@@ -207,7 +207,11 @@ class ServiceSettings(BaseSettings):
         default=8 << 20, description="larger payloads are rejected (too_large)"
     )
     max_boxes: Annotated[int, Field(ge=1)] = Field(
-        default=10_000, description="frames with more boxes are rejected (too_large)"
+        default=10_000,
+        description="frames with more boxes are rejected (too_large); measured "
+        "(python -m simpletrack.bench.heavy, nuscenes preset, 200 m street scene): "
+        "10,000 boxes step in ~0.4-0.55 s with a ~100-180 MB peak, 20,000 take ~1.9 s, "
+        "so no frame admitted holds its worker (and the sensors sharing it) near 1 s",
     )
     max_sensors: Annotated[int, Field(ge=1)] = Field(
         default=1000, description="new sensors beyond this are rejected (too_many_sensors)"
