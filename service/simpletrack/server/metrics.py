@@ -131,7 +131,7 @@ class Metrics:
         )
         self.resets = Counter(
             "simpletrack_tracker_resets",
-            "Per-sensor tracker resets: gap, time_backwards",
+            "Per-sensor tracker resets: gap, time_backwards, non_finite (tracks not published)",
             ("reason",),
             registry=r,
         )
@@ -152,7 +152,7 @@ class Metrics:
                 (self.dropped if reason in DROP_REASONS else self.rejected).labels(reason=reason)
         for stage in STAGES:
             self.stage.labels(stage=stage)
-        for why in ("gap", "time_backwards"):
+        for why in ("gap", "time_backwards", "non_finite"):
             self.resets.labels(reason=why)
 
     def labels(self, vehicle: str) -> dict[str, str]:
