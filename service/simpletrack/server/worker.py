@@ -184,6 +184,7 @@ class Worker(threading.Thread):
             wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
         if not self._publishable(item, state, wire, fp, seq, stamp_ns):
             return
+        self.sensors.reserve_ids(state)  # durable before any of the frame's ids leaves
         payload = encode_track_frame(
             vehicle=vehicle,
             sensor=sensor,
