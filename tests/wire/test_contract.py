@@ -140,6 +140,11 @@ _INF_YAW = np.array([0, np.inf, 0], np.float32).tobytes()
 _ZERO_H = np.array([[1, 1, 1], [1, 1, 0], [1, 1, 1]], np.float32).tobytes()
 _NEG_W = np.array([[1, -1, 1], [1, 1, 1], [1, 1, 1]], np.float32).tobytes()
 _ROT = [0.5, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # scaled, not rigid
+_HUGE = np.array([[0, 0, 0], [0, 3.4e38, 0], [0, 0, 0]], np.float32).tobytes()
+_LONG = np.array([[1, 1, 1], [101, 1, 1], [1, 1, 1]], np.float32).tobytes()
+_SPUN = np.array([0, 0, -2e4], np.float32).tobytes()
+_FAST = np.array([[0, 0], [0, 0], [0, 250]], np.float32).tobytes()
+_FAR = [1, 0, 0, 2e5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # rigid, 200 km away
 
 BAD_INPUTS: list[tuple[str, bytes, ErrorReason, str | None]] = [
     ("not msgpack", b"\xc1\xc1\xc1", ErrorReason.MALFORMED, "payload"),
@@ -167,6 +172,16 @@ BAD_INPUTS: list[tuple[str, bytes, ErrorReason, str | None]] = [
     ("inf yaw", mutated("boxes.yaw", _INF_YAW), ErrorReason.NON_FINITE, "boxes.yaw"),
     ("zero height", mutated("boxes.size", _ZERO_H), ErrorReason.NON_POSITIVE_SIZE, "boxes.size"),
     ("negative width", mutated("boxes.size", _NEG_W), ErrorReason.NON_POSITIVE_SIZE, "boxes.size"),
+    ("centre at 3.4e38", mutated("boxes.center", _HUGE), ErrorReason.INVALID_VALUE, "boxes.center"),
+    ("101 m long", mutated("boxes.size", _LONG), ErrorReason.INVALID_VALUE, "boxes.size"),
+    ("yaw of -2e4", mutated("boxes.yaw", _SPUN), ErrorReason.INVALID_VALUE, "boxes.yaw"),
+    (
+        "250 m/s",
+        mutated("boxes.velocity", _FAST, payload(boxes=boxes(velocity=True))),
+        ErrorReason.INVALID_VALUE,
+        "boxes.velocity",
+    ),
+    ("pose 200 km away", mutated("pose", _FAR), ErrorReason.INVALID_VALUE, "pose"),
     (
         "index past table",
         mutated("boxes.class_index", np.array([0, 1, 2], np.int32).tobytes()),
@@ -193,6 +208,23 @@ def test_every_bad_input_is_a_typed_rejection_naming_the_field(
     out = decode_detection_frame(payload_bytes, DecodeLimits(max_boxes=10), class_codes=CODES)
     assert isinstance(out, Rejection), out
     assert (out.reason, out.field) == (reason, field), out.detail
+
+
+def test_values_exactly_at_their_bounds_are_accepted() -> None:
+    n = 2
+    edge = BoxArrays(
+        classes=("Car",),
+        class_index=np.zeros(n, np.int32),
+        center=np.array([[1e5, -1e5, 1e5], [0, 0, 0]], np.float32),
+        size=np.array([[100, 100, 100], [1, 1, 1]], np.float32),
+        yaw=np.array([1e4, -1e4], np.float32),
+        score=np.array([1e300, -1e300]),
+        velocity=np.array([[200, -200], [0, 0]], np.float32),
+    )
+    pose = np.eye(4)
+    pose[:3, 3] = [1e5, -1e5, 1e5]
+    out = decode_detection_frame(payload(boxes=edge, pose=pose), class_codes=CODES)
+    assert isinstance(out, DecodedDetections), out
 
 
 def test_oversized_payload_is_rejected_before_parsing() -> None:

@@ -13,6 +13,10 @@ sensor, one vehicle or the whole fleet, as a blocking iterator, a callback, or `
 Messages are decoded on Zenoh's thread and wait in a bounded buffer (the newest ``buffer``
 frames are kept; ``dropped`` counts the rest). ``close()`` wakes every waiting consumer and
 closes the session the subscriber opened: no thread stays blocked at exit.
+
+A payload on a tracks key that does not decode is never silent: it is counted (``invalid``,
+``invalid_reasons``), logged as a warning on this module's logger (at most one line a second,
+with the count of those not logged), and handed to ``on_invalid`` if given.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ if TYPE_CHECKING:
     from simpletrack.wire.convert import Boxes
 
 log = logging.getLogger(__name__)
+INVALID_LOG_INTERVAL_S = 1.0  # a stream of garbage must not flood the planner's log
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,10 +117,15 @@ class TrackSubscriber:
         key_expr: str | None = None,
         callback: Callable[[TrackMessage], None] | None = None,
         buffer: int = 1024,
+        on_invalid: Callable[[str, Rejection], None] | None = None,
     ) -> None:
         self.key_expr = key_expr or tracks_key(prefix, vehicle, sensor)
-        self.invalid = 0
+        self.invalid = 0  # payloads on a tracks key that did not decode
+        self.invalid_reasons: dict[str, int] = {}  # the same, by ErrorReason value
         self.last_rejection: Rejection | None = None
+        self._on_invalid = on_invalid
+        self._invalid_logged_at = -INVALID_LOG_INTERVAL_S
+        self._invalid_unlogged = 0
         self._session = session
         self._owns_session = False
         self._callback = callback
@@ -141,8 +151,7 @@ class TrackSubscriber:
         received = time.time_ns()
         decoded = decode_track_frame(sample.payload.to_bytes())
         if isinstance(decoded, Rejection):
-            self.invalid += 1
-            self.last_rejection = decoded
+            self._invalid(str(sample.key_expr), decoded)
             return
         msg = TrackMessage(str(sample.key_expr), decoded[0], decoded[1], received)
         if self._callback is None:
@@ -152,6 +161,32 @@ class TrackSubscriber:
             self._callback(msg)
         except Exception:  # a user callback must not kill Zenoh's thread
             log.exception("track callback failed")
+
+    def _invalid(self, key: str, r: Rejection) -> None:
+        self.invalid += 1
+        self.invalid_reasons[r.reason.value] = self.invalid_reasons.get(r.reason.value, 0) + 1
+        self.last_rejection = r
+        now = time.monotonic()
+        if now - self._invalid_logged_at >= INVALID_LOG_INTERVAL_S:
+            log.warning(
+                "invalid track frame on %s: %s (field %s): %s; %d invalid so far, "
+                "%d more since the last line",
+                key,
+                r.reason.value,
+                r.field,
+                r.detail,
+                self.invalid,
+                self._invalid_unlogged,
+                extra={"key": key, "reason": r.reason.value, "field": r.field},
+            )
+            self._invalid_logged_at, self._invalid_unlogged = now, 0
+        else:
+            self._invalid_unlogged += 1
+        if self._on_invalid is not None:
+            try:
+                self._on_invalid(key, r)
+            except Exception:  # a user callback must not kill Zenoh's thread
+                log.exception("on_invalid callback failed")
 
     # ----------------------------------------------------------------- consuming
     @property

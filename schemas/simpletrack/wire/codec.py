@@ -46,6 +46,15 @@ I32 = npt.NDArray[np.int32]
 POSE_TOLERANCE = 1e-4
 _EYE3 = np.eye(3)
 
+# Plausibility bounds of a detection (schemas/README.md, "Bounds"). Beyond them a value is a
+# bug upstream, float32 has too few digits left to mean anything (its spacing at 1e5 is 8 mm),
+# and the tracker's arithmetic could leave float32 on the way out (3.4e38 m boxes used to
+# come back as inf). Scores are not bounded: the tracker only copies and decays them.
+MAX_COORDINATE_M = 1e5  # |x|, |y|, |z| of a centre and of a pose's translation
+MAX_SIZE_M = 100.0  # each of l, w, h
+MAX_YAW_RAD = 1e4
+MAX_SPEED_MPS = 200.0  # |vx|, |vy|
+
 
 @dataclass(frozen=True, slots=True)
 class DecodeLimits:
@@ -196,6 +205,23 @@ def _columns(
     return out
 
 
+def _bounded(arr: npt.NDArray[Any], bound: float, field: str, unit: str) -> None:
+    # One reduction on the hot path; the offending row is looked for only on failure.
+    if arr.size and float(np.abs(arr).max()) > bound:
+        row = int(np.argwhere(np.abs(arr) > bound)[0][0])
+        raise _Reject(
+            ErrorReason.INVALID_VALUE, field, f"|value| over {bound:g} {unit} in row {row}"
+        )
+
+
+def _check_bounds(boxes: BoxArrays) -> None:
+    _bounded(boxes.center, MAX_COORDINATE_M, "boxes.center", "m")
+    _bounded(boxes.size, MAX_SIZE_M, "boxes.size", "m")
+    _bounded(boxes.yaw, MAX_YAW_RAD, "boxes.yaw", "rad")
+    if boxes.velocity is not None:
+        _bounded(boxes.velocity, MAX_SPEED_MPS, "boxes.velocity", "m/s")
+
+
 def _det3(p: list[float]) -> float:
     """Determinant of the rotation part of a row-major 4x4 (only its sign is used)."""
     return (
@@ -221,6 +247,8 @@ def _pose(frame: DetectionFrame) -> F64 | None:
     )
     if not rigid:
         raise _Reject(ErrorReason.INVALID_VALUE, "pose", "not a rigid transform (row-major 4x4)")
+    if max(abs(p[3]), abs(p[7]), abs(p[11])) > MAX_COORDINATE_M:
+        raise _Reject(ErrorReason.INVALID_VALUE, "pose", f"translation over {MAX_COORDINATE_M:g} m")
     return pose
 
 
@@ -273,6 +301,7 @@ def decode_detection_frame(
         if len(boxes) and not (boxes.size > 0).all():
             row = int(np.argwhere(~(boxes.size > 0))[0][0])
             raise _Reject(ErrorReason.NON_POSITIVE_SIZE, "boxes.size", f"size <= 0 in row {row}")
+        _check_bounds(boxes)
         pose = _pose(frame)
         codes = None if class_codes is None else _class_codes(boxes, class_codes)
         return DecodedDetections(frame=frame, boxes=boxes, pose=pose, codes=codes)

@@ -154,6 +154,8 @@ def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
 _DELETE = object()
 _NAN_CENTER = _f32([[10.0, 0.0, 0.75], [np.nan, -2.5, 0.75], [12.0, -5.0, 0.75]]).tobytes()
 _ZERO_SIZE = _f32([[4.5, 1.75, 1.5], [4.5, 0.0, 1.5], [4.5, 1.75, 1.5]]).tobytes()
+# Finite but absurd: the largest float32, the box that used to come back as inf.
+_HUGE_CENTER = _f32([[10.0, 0.0, 0.75], [11.0, -2.5, 0.75], [3.4e38, -5.0, 0.75]]).tobytes()
 
 # name -> (message type, payload)
 VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
@@ -174,6 +176,10 @@ VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
     "invalid_non_positive_size": (
         "DetectionFrame",
         lambda: _raw(_set("boxes.size", _ZERO_SIZE)),
+    ),
+    "invalid_out_of_bounds": (
+        "DetectionFrame",
+        lambda: _raw(_set("boxes.center", _HUGE_CENTER)),
     ),
     "invalid_class_index": (
         "DetectionFrame",

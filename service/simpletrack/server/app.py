@@ -29,7 +29,7 @@ from simpletrack.server.misses import MissCounter
 from simpletrack.server.outbox import MSGPACK, dropped, frame_error, put
 from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, config_digest
-from simpletrack.server.snapshots import SnapshotWriter, read_all
+from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
 from simpletrack.wire.codec import DecodeLimits, encode
@@ -96,6 +96,12 @@ class Service:
         self._queues = [WorkQueue(s.queue_size) for _ in range(s.workers)]
         self._workers = [Worker(i, q, ctx) for i, q in enumerate(self._queues)]
         if s.state_dir is not None:
+            # Id reservations first: a sensor whose snapshot is damaged still has one.
+            for vehicle, sensor, floor in read_all_ids(s.state_dir):
+                key = self.keys.detections(vehicle, sensor)
+                self._workers[worker_index(key, s.workers)].sensors.restore_floor(
+                    vehicle, sensor, floor
+                )
             for snap in read_all(s.state_dir):
                 key = self.keys.detections(snap.vehicle, snap.sensor)
                 self._workers[worker_index(key, s.workers)].sensors.adopt(snap)
@@ -298,6 +304,8 @@ class Service:
                 w.join(max(0.1, deadline - time.monotonic() + 5.0))
             if w.is_alive():
                 log.error("worker_stuck", worker=w.index)
+            else:  # it publishes no more: its unused reserved ids can go back
+                w.sensors.release_ids()
         if self._writer is not None and not self._writer.close(timeout=s.shutdown_timeout_s):
             log.error("snapshot_writer_stuck")
         if self._session is not None:

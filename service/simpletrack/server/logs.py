@@ -10,7 +10,8 @@ import json
 import logging
 import sys
 import time
-from typing import Any
+import warnings
+from typing import Any, TextIO
 
 from simpletrack.server.settings import LogFormat, LogLevel
 
@@ -81,6 +82,23 @@ def get_logger(name: str) -> EventLogger:
     return EventLogger(logging.getLogger(f"{_ROOT}.{name}"))
 
 
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: TextIO | None = None,
+    line: str | None = None,
+) -> None:
+    """Python warnings (numpy's RuntimeWarnings among them) as events, not raw stderr text."""
+    get_logger("warnings").warning(
+        "python_warning",
+        category=category.__name__,
+        message=str(message)[:500],
+        where=f"{filename}:{lineno}",
+    )
+
+
 def configure(fmt: LogFormat, level: LogLevel) -> None:
     """Send the service's events to stderr, one line each. Zenoh's own (Rust) logs are
     enabled separately from ``RUST_LOG`` (see simpletrack.server.app)."""
@@ -90,6 +108,7 @@ def configure(fmt: LogFormat, level: LogLevel) -> None:
     root.handlers[:] = [handler]
     root.setLevel(level.value.upper())
     root.propagate = False
+    warnings.showwarning = _show_warning
 
 
 __all__ = ["EventLogger", "configure", "get_logger"]

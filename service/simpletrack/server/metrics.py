@@ -131,7 +131,7 @@ class Metrics:
         )
         self.resets = Counter(
             "simpletrack_tracker_resets",
-            "Per-sensor tracker resets: gap, time_backwards, restart",
+            "Per-sensor tracker resets: gap, time_backwards, restart, non_finite (tracks not published)",
             ("reason",),
             registry=r,
         )
@@ -162,7 +162,7 @@ class Metrics:
                 (self.dropped if reason in DROP_REASONS else self.rejected).labels(reason=reason)
         for stage in STAGES:
             self.stage.labels(stage=stage)
-        for why in ("gap", "time_backwards", "restart"):
+        for why in ("gap", "time_backwards", "restart", "non_finite"):
             self.resets.labels(reason=why)
 
     def labels(self, vehicle: str) -> dict[str, str]:

@@ -1,5 +1,6 @@
 """The sensors one worker holds: admission under the global budget, restore from snapshots,
-eviction of idle sensors (their ids stay reserved), and the snapshots written to disk.
+eviction of idle sensors (their ids stay reserved), the snapshots and id reservations
+written to disk.
 
 Mutated only on the worker's thread; ``status`` and ``names`` may be read from any thread.
 """
@@ -14,7 +15,16 @@ from simpletrack.core.tracker import Tracker
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.sensors import Arrival, SensorBudget, SensorState
-from simpletrack.server.snapshots import Batch, SnapshotWriter, snapshot_path
+from simpletrack.server.snapshots import (
+    ID_BLOCK,
+    Batch,
+    SnapshotWriter,
+    encode_ids,
+    ids_path,
+    read_ids,
+    snapshot_path,
+    write_atomic,
+)
 from simpletrack.wire.codec import encode as encode_message
 from simpletrack.wire.models import SensorSnapshot, SensorStatus
 
@@ -41,6 +51,8 @@ class SensorRegistry:
         self.writer, self.state_dir = writer, state_dir
         self.sensors: dict[str, SensorState] = {}
         self.retired: dict[str, int] = {}  # evicted sensor -> lowest unused id
+        # sensor -> its id floor on disk (every id it published is below); absent: read it
+        self.id_floor: dict[str, int] = {}
         self.snapshot_done_at = time.monotonic()
 
     def __len__(self) -> int:
@@ -62,11 +74,20 @@ class SensorRegistry:
         log.info("sensor_added", vehicle=vehicle, sensor=sensor, seq=seq, id_base=state.id_base)
         return state
 
+    # ------------------------------------------------------------------ restore
+    def restore_floor(self, vehicle: str, sensor: str, floor: int) -> None:
+        """A sensor's id reservation from the state directory (before ``adopt`` and before
+        the worker starts): whatever becomes of its snapshot, its ids continue above it."""
+        key = f"{vehicle}/{sensor}"
+        self.id_floor[key] = floor
+        self.retired[key] = max(self.retired.get(key, 0), floor)
+
     def adopt(self, snap: SensorSnapshot) -> None:
         """Take over a sensor from the state directory (before the worker starts)."""
         key = f"{snap.vehicle}/{snap.sensor}"
+        floor = max(snap.id_next, self.id_floor.get(key, 0))
         if snap.tracker is None:
-            self.retired[key] = snap.id_next
+            self.retired[key] = floor
             return
         tracker: Tracker | None = None
         id_base = snap.id_base
@@ -83,10 +104,14 @@ class SensorRegistry:
                     sensor=snap.sensor,
                 )
         if tracker is None:  # start afresh, but never reuse an id
-            tracker, id_base = self.new_tracker(), snap.id_next
+            tracker, id_base = self.new_tracker(), floor
+        else:
+            # A snapshot older than the reservation (SIGKILL after it was taken) keeps its
+            # tracks and their ids; ids born since it may have been published: skip them.
+            tracker.next_id = max(tracker.next_id, floor - id_base)
         if not self.budget.acquire():
             log.error("snapshot_over_max_sensors", vehicle=snap.vehicle, sensor=snap.sensor)
-            self.retired[key] = snap.id_next
+            self.retired[key] = floor
             return
         self.sensors[key] = SensorState(
             vehicle=snap.vehicle,
@@ -106,7 +131,51 @@ class SensorRegistry:
             sensor=snap.sensor,
             seq=snap.last_seq,
             id_next=snap.id_next,
+            id_floor=floor,
         )
+
+    # ------------------------------------------------------------------ id reservations
+    def reserve_ids(self, s: SensorState) -> None:
+        """Before a frame is published: its ids (all below ``s.id_next``) must be below the
+        reservation on disk; if not, reserve the next block and wait for it to be durable."""
+        if self.state_dir is None:
+            return
+        key = f"{s.vehicle}/{s.sensor}"
+        floor = self.id_floor.get(key)
+        if floor is None:  # a new sensor, or one forgotten: the disk knows
+            floor = read_ids(self.state_dir, s.vehicle, s.sensor) or 0
+            self.id_floor[key] = floor
+            while len(self.id_floor) > MAX_RETIRED:
+                del self.id_floor[next(iter(self.id_floor))]
+        if s.id_next <= floor:
+            return
+        floor = s.id_next + ID_BLOCK
+        try:
+            path = ids_path(self.state_dir, s.vehicle, s.sensor)
+            write_atomic(path, encode_ids(s.vehicle, s.sensor, floor))
+        except OSError as e:
+            # Publishing anyway: a frame answered beats a frame refused for want of disk; the
+            # ids stay unique unless the process also dies and its snapshot is lost.
+            self.metrics.snapshot_failures.inc()
+            log.error("id_reservation_failed", vehicle=s.vehicle, sensor=s.sensor, error=str(e))
+            return
+        self.id_floor[key] = floor
+
+    def release_ids(self) -> None:
+        """At a clean stop, once no frame will be published: lower each reservation to the
+        exact next id, so that a restart from the final snapshots gives the same ids as an
+        uninterrupted run. Written after the final snapshots, by the same writer thread."""
+        if self.writer is None or self.state_dir is None:
+            return
+        exact = {**self.retired, **{k: s.id_next for k, s in self.sensors.items()}}
+        files = []
+        for key, floor in self.id_floor.items():
+            if key in exact and exact[key] < floor:
+                vehicle, sensor = key.split("/")
+                path = ids_path(self.state_dir, vehicle, sensor)
+                files.append((path, encode_ids(vehicle, sensor, exact[key])))
+        if files:
+            self.writer.submit(Batch(files, lambda written, failed: None))
 
     # ------------------------------------------------------------------ eviction
     def evict_idle(self, now: float, idle_s: float) -> list[SensorState]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from simpletrack.core.tracker import Tracker
+from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.intake import Dropped, Inbound, WorkQueue
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
@@ -37,6 +38,7 @@ from simpletrack.wire.codec import (
     decode_detection_frame,
     encode_track_frame,
 )
+from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN
@@ -181,8 +183,10 @@ class Worker(threading.Thread):
         tframe, ignored = frame_from_wire(decoded, stamp)
         if ignored:
             m.boxes_ignored.inc(ignored)
+        fp = FloatingPointErrors()
         try:
-            tracks = state.tracker.step(tframe)
+            with fp:
+                tracks = state.tracker.step(tframe)
         except Exception as e:
             log.error("tracker_failed", exc=True, vehicle=vehicle, sensor=sensor, seq=seq)
             state.before = None  # what keep_undo holds is no longer the state before the last
@@ -193,7 +197,11 @@ class Worker(threading.Thread):
         t2 = time.perf_counter()
         m.stage.labels(stage="track").observe(t2 - t1)
 
-        wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
+        with fp:
+            wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
+        if not self._publishable(item, state, wire, fp, seq, stamp_ns):
+            return
+        self.sensors.reserve_ids(state)  # durable before any of the frame's ids leaves
         payload = encode_track_frame(
             vehicle=vehicle,
             sensor=sensor,
@@ -239,6 +247,40 @@ class Worker(threading.Thread):
             undone_seq=None if undone is None else undone.seq,
             undone_lead_s=None if lead is None else round(lead * 1e-9, 3),
         )
+
+    def _publishable(
+        self,
+        item: Inbound,
+        s: SensorState,
+        wire: TrackArrays,
+        fp: FloatingPointErrors,
+        seq: int,
+        stamp_ns: int,
+    ) -> bool:
+        """The guard before publishing (docs/SERVICE.md, "What a fault can cost"): numpy's
+        floating-point errors go to the log; a frame with NaN or inf is never published, and
+        the tracker whose state produced it is reset (ids continue above the old ones)."""
+        if fp.kinds:
+            log.warning(
+                "numeric_warning", vehicle=s.vehicle, sensor=s.sensor, seq=seq, kinds=fp.kinds
+            )
+        r = non_finite_refusal(wire, seq, stamp_ns)
+        if r is None:
+            return True
+        dropped_tracks = s.active_tracks
+        s.reset(stamp_ns)
+        self.ctx.metrics.resets.labels(reason="non_finite").inc()
+        self.ctx.metrics.active_tracks.dec(dropped_tracks)
+        log.error(
+            "non_finite_tracks",
+            vehicle=s.vehicle,
+            sensor=s.sensor,
+            seq=seq,
+            field=r.field,
+            id_base=s.id_base,
+        )
+        self._refuse(item, s.vehicle, s.sensor, s, r)
+        return False
 
     def _reset(self, s: SensorState, verdict: Verdict, seq: int, stamp_ns: int) -> None:
         reason = verdict.order.value
