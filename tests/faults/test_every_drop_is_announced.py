@@ -8,7 +8,15 @@ from pathlib import Path
 import pytest
 
 from simpletrack.wire import ErrorReason, FrameError, encode_detection_frame
-from tests.service_helpers import Client, client, metric, moving_cars, stamp, start_service, wait_for
+from tests.service_helpers import (
+    Client,
+    client,
+    metric,
+    moving_cars,
+    stamp,
+    start_service,
+    wait_for,
+)
 
 pytestmark = pytest.mark.zenoh
 
@@ -56,9 +64,7 @@ def test_every_shed_frame_is_named_by_a_notice_and_counted_once(tmp_path: Path) 
 
             def accounted() -> bool:
                 return all(
-                    len(t) + len(named(e)) == sent[s]
-                    for s in sent
-                    for t, e in [snapshot(cli, s)]
+                    len(t) + len(named(e)) == sent[s] for s in sent for t, e in [snapshot(cli, s)]
                 )
 
             wait_for(accounted, 60, "every frame tracked or announced")

@@ -93,7 +93,9 @@ class Service:
             w.start()
 
         intake = Intake(self._queues, s.backpressure, self._on_received, self._on_dropped)
-        self._declared.append(session.declare_subscriber(self.keys.all_detections, intake))
+        self._declared.append(
+            session.declare_subscriber(self.keys.all_detections, intake.handler())
+        )
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )

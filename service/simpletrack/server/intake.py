@@ -222,6 +222,13 @@ class Intake:
         self._on_received = on_received
         self._on_dropped = on_dropped
 
+    def handler(self) -> zenoh.handlers.Callback[zenoh.Sample]:
+        """The subscriber's handler. With ``drop_oldest`` the callback never blocks, so it runs
+        on the Zenoh thread of each link: a flood on one link then waits for the interpreter
+        lock, not in a FIFO shared with every other sensor's samples (the default handler's
+        thread). ``block`` keeps that thread: waiting for room must not stall Zenoh's own."""
+        return zenoh.handlers.Callback(self, indirect=self._block)
+
     def __call__(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         item = Inbound(key, sample.payload.to_bytes(), time.time_ns(), time.perf_counter())
