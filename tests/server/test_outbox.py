@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from simpletrack.server.outbox import dropped, frame_error
+from simpletrack.server.outbox import drop_notice, dropped, frame_error
 from simpletrack.wire.codec import Rejection, decode_message, encode, pack
 from simpletrack.wire.models import FrameError
 from simpletrack.wire.reasons import ErrorReason
@@ -25,3 +25,17 @@ def test_a_frame_error_round_trips_and_caps_field_and_detail() -> None:
     )  # fmt: skip
     assert err.field is not None and len(err.field) == 256 and len(err.detail) == 1024
     assert decode_message(encode(err), FrameError) == err
+
+
+def test_a_drop_notice_names_every_frame_it_stands_for_and_round_trips() -> None:
+    r = drop_notice(ErrorReason.DROPPED_QUEUE_FULL, [4, None, 6], 99)
+    assert (r.seq, r.stamp_ns, r.field) == (4, 99, None) and r.detail.startswith("3 frames")
+    err = frame_error("car-1", "lidar", r, instance="svc", received_ns=5, seqs=[4, None, 6])
+    back = decode_message(encode(err), FrameError)
+    assert not isinstance(back, Rejection) and back.seqs == [4, None, 6]
+
+
+def test_an_error_without_seqs_is_encoded_as_before_the_field_existed() -> None:
+    r = Rejection(ErrorReason.NON_FINITE, "pose", "nan", 3, 4)
+    payload = encode(frame_error("car-1", "lidar", r, instance="svc", received_ns=5))
+    assert b"seqs" not in payload

@@ -9,6 +9,7 @@ to the same verdicts. Column contents (lengths, finiteness, sizes) are the codec
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from dataclasses import field as dataclass_field  # FrameError has a field named "field"
 from typing import Any
 
 import numpy as np
@@ -35,6 +36,11 @@ from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$"
 INT64_MAX = 2**63 - 1
 INT32_MAX = 2**31 - 1
+# The most frames one coalesced drop notice names (FrameError.seqs): ~9 KB of msgpack at most.
+MAX_NOTICE_SEQS = 1024
+# Field metadata of an optional field left out of the map when it is None, so that messages
+# without it stay byte for byte what they were before it existed.
+OMIT_NONE = {"omit_none": True}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -121,6 +127,8 @@ class FrameError:
     detail: str
     instance: str
     received_ns: int
+    # A drop notice: the seq of every frame it stands for (None where unreadable), in order.
+    seqs: list[int | None] | None = dataclass_field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -267,6 +275,7 @@ FRAME_ERROR = MapSpec(
         Field("detail", string(max_length=1024)),
         Field("instance", _name),
         Field("received_ns", _int64),
+        Field("seqs", nullable(array(nullable(_int64), max_length=MAX_NOTICE_SEQS)), None),
     ],
 )
 SENSOR_STATUS = MapSpec(
@@ -358,7 +367,11 @@ SPECS: dict[str, MapSpec[Any]] = {
 def to_map(message: Message) -> dict[str, Any]:
     """A message as the map that travels: fields in declaration order, nested messages as
     maps (what ``pydantic``'s ``model_dump(mode="python")`` gives for the model twin)."""
-    return {f.name: _plain(getattr(message, f.name)) for f in fields(message)}
+    out = {f.name: _plain(getattr(message, f.name)) for f in fields(message)}
+    for f in fields(message):
+        if f.metadata.get("omit_none") and out[f.name] is None:
+            del out[f.name]
+    return out
 
 
 def _plain(value: Any) -> Any:

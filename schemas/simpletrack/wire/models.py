@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
 
 from simpletrack.wire.columns import (
     DETECTION_SPECS,
@@ -23,6 +23,7 @@ from simpletrack.wire.columns import (
     ColumnSpec,
     to_column,
 )
+from simpletrack.wire.messages import MAX_NOTICE_SEQS
 from simpletrack.wire.messages import NAME_PATTERN as NAME_PATTERN  # the server's import
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
@@ -183,6 +184,19 @@ class FrameError(WireModel):
     detail: Annotated[str, Field(max_length=1024)] = Field(description="human-readable")
     instance: Name
     received_ns: Int64
+    seqs: Annotated[list[Int64 | None], Field(max_length=MAX_NOTICE_SEQS)] | None = Field(
+        default=None,
+        description="drop notices: the seq of every frame the notice stands for, in arrival "
+        "order (nil: unreadable); absent on other errors (schemas/README.md)",
+    )
+
+    @model_serializer(mode="wrap")
+    def _omit_absent_seqs(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # Absent rather than nil, so an error without it is the message it always was.
+        out: dict[str, Any] = handler(self)
+        if out.get("seqs", 0) is None:
+            del out["seqs"]
+        return out
 
 
 class SensorStatus(WireModel):

@@ -116,7 +116,7 @@ class Service:
         subscriber = ext.declare_advanced_subscriber(
             session,
             self.keys.all_detections,
-            misses,
+            intake.handler(misses),
             # Without a cap, a service that first hears a vehicle's heartbeat takes its whole
             # cache: frames a restored sensor already tracked, up to seconds old.
             history=ext.HistoryConfig(max_samples=s.history_frames),
@@ -247,8 +247,9 @@ class Service:
             query.drop()  # type: ignore[no-untyped-call]
 
     def _on_snapshot_query(self, query: zenoh.Query) -> None:
-        """Each worker serialises its own sensors on its own thread; the last to answer
-        finalises the query."""
+        """Each worker serialises its own sensors on its own thread, taking queries in turn
+        with its sensors' frames (at most ``MAX_QUERIES`` waiting: beyond, an error reply);
+        the last to answer finalises the query."""
         asked = zenoh.KeyExpr(str(query.key_expr))
         parts = str(query.key_expr).split("/")
         vehicle, sensor = parts[-2], parts[-1]
@@ -258,8 +259,24 @@ class Service:
         else:
             targets = list(self._workers)
         pending = [len(targets)]
+        busy: list[int] = []  # workers whose query lane was full
         lock = threading.Lock()
         instance = self.settings.instance
+
+        def done(refused: int | None = None) -> None:
+            with lock:
+                if refused is not None:
+                    busy.append(refused)
+                pending[0] -= 1
+                last = pending[0] == 0
+            if not last:
+                return
+            if busy:
+                # Bounded lanes: the querier learns at once that part of the answer is missing.
+                self.metrics.queries_refused.inc()
+                with contextlib.suppress(zenoh.ZError):
+                    query.reply_err(f"busy: workers {sorted(busy)} have queries waiting")
+            query.drop()  # type: ignore[no-untyped-call]
 
         def answer(worker: Worker) -> None:
             try:
@@ -272,14 +289,11 @@ class Service:
             except zenoh.ZError as e:
                 log.warning("query_reply_failed", key=str(asked), error=str(e))
             finally:
-                with lock:
-                    pending[0] -= 1
-                    last = pending[0] == 0
-                if last:
-                    query.drop()  # type: ignore[no-untyped-call]
+                done()
 
         for w in targets:
-            w.queue.put_control(lambda w=w: answer(w))  # type: ignore[misc]
+            if not w.queue.put_control(lambda w=w: answer(w)):  # type: ignore[misc]
+                done(refused=w.index)
 
     # ------------------------------------------------------------------ stop
     def request_stop(self, signum: int | None = None, _frame: FrameType | None = None) -> None:

@@ -129,6 +129,16 @@ class Metrics:
         self.evicted = Counter(
             "simpletrack_sensors_evicted", "Sensors evicted after sensor_idle_s", registry=r
         )
+        self.reclaimed = Counter(
+            "simpletrack_sensors_reclaimed",
+            "Sensors evicted early, silent over reset_gap_s while every max_sensors slot was taken",
+            registry=r,
+        )
+        self.queries_refused = Counter(
+            "simpletrack_queries_refused",
+            "Snapshot queries answered with an error: a worker already had its queries waiting",
+            registry=r,
+        )
         self.resets = Counter(
             "simpletrack_tracker_resets",
             "Per-sensor tracker resets: gap, time_backwards, restart, non_finite (tracks not published)",

@@ -39,7 +39,12 @@ def dropped(reason: ErrorReason, payload: bytes) -> Rejection:
 
 
 def frame_error(
-    vehicle: str, sensor: str, r: Rejection, instance: str, received_ns: int
+    vehicle: str,
+    sensor: str,
+    r: Rejection,
+    instance: str,
+    received_ns: int,
+    seqs: list[int | None] | None = None,
 ) -> FrameError:
     return FrameError(
         schema_version=SCHEMA_VERSION,
@@ -52,7 +57,16 @@ def frame_error(
         detail=r.detail[:1024],
         instance=instance,
         received_ns=received_ns,
+        seqs=seqs,
     )
+
+
+def drop_notice(reason: ErrorReason, seqs: list[int | None], stamp_ns: int | None) -> Rejection:
+    """The refusal standing for frames shed together: ``seq``/``stamp_ns`` are the first's."""
+    n = len(seqs)
+    what = DROP_DETAILS.get(reason, reason.value)
+    detail = what if n == 1 else f"{n} frames: {what}"
+    return Rejection(reason, None, detail, seqs[0], stamp_ns)
 
 
 def put(
@@ -98,17 +112,8 @@ class Outbox:
     def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int, held: bool) -> None:
         """Publish and log a refusal. ``held``: the sensor is one the worker holds (it gets a
         declared publisher); a sensor that never got in is told by a one-off put."""
-        payload = encode_message(frame_error(vehicle, sensor, r, self.instance, received_ns))
-        key = self.keys.errors(vehicle, sensor)
-        try:
-            if held:
-                self._publisher(self._errors, key, (vehicle, sensor)).put(payload)
-            else:
-                put(self.session, key, payload, self.congestion)
-        except zenoh.ZError as e:
-            log.error(
-                "error_publish_failed", vehicle=vehicle, sensor=sensor, seq=r.seq, error=str(e)
-            )
+        err = frame_error(vehicle, sensor, r, self.instance, received_ns)
+        self._publish(err, held)
         log.warning(
             "frame_dropped" if r.reason.value.startswith("dropped") else "frame_rejected",
             vehicle=vehicle,
@@ -118,6 +123,44 @@ class Outbox:
             field=r.field,
             detail=r.detail,
         )
+
+    def drops(
+        self,
+        vehicle: str,
+        sensor: str,
+        reason: ErrorReason,
+        seqs: list[int | None],
+        stamp_ns: int | None,
+        received_ns: int,
+        held: bool,
+    ) -> None:
+        """Publish and log one notice naming every frame in ``seqs`` (shed under load)."""
+        r = drop_notice(reason, seqs, stamp_ns)
+        self._publish(frame_error(vehicle, sensor, r, self.instance, received_ns, seqs), held)
+        log.warning(
+            "frame_dropped",
+            vehicle=vehicle,
+            sensor=sensor,
+            seq=r.seq,
+            reason=reason.value,
+            frames=len(seqs),
+            last_seq=seqs[-1],
+            detail=r.detail,
+        )
+
+    def _publish(self, err: FrameError, held: bool) -> None:
+        vehicle, sensor = err.vehicle, err.sensor
+        payload = encode_message(err)
+        key = self.keys.errors(vehicle, sensor)
+        try:
+            if held:
+                self._publisher(self._errors, key, (vehicle, sensor)).put(payload)
+            else:
+                put(self.session, key, payload, self.congestion)
+        except zenoh.ZError as e:
+            log.error(
+                "error_publish_failed", vehicle=vehicle, sensor=sensor, seq=err.seq, error=str(e)
+            )
 
     def forget(self, vehicle: str, sensor: str) -> None:
         """Undeclare a sensor's publishers (evicted, or the worker is stopping)."""

@@ -2,11 +2,17 @@
 eviction of idle sensors (their ids stay reserved), the snapshots and id reservations
 written to disk.
 
+Admission at capacity: while every ``max_sensors`` slot is taken, a sensor silent for over
+``reclaim_after_s`` (the service's ``reset_gap_s``: its next frame would start a fresh tracker
+anyway) gives way, the longest silent first: at once to a new sensor of the same worker, and
+at the next housekeeping on every other worker. A sensor that keeps sending is never evicted.
+
 Mutated only on the worker's thread; ``status`` and ``names`` may be read from any thread.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -41,6 +47,7 @@ class SensorRegistry:
         digest: str,
         writer: SnapshotWriter | None,
         state_dir: Path | None,
+        reclaim_after_s: float = math.inf,
     ) -> None:
         self.budget, self.metrics, self.new_tracker, self.digest = (
             budget,
@@ -49,11 +56,14 @@ class SensorRegistry:
             digest,
         )
         self.writer, self.state_dir = writer, state_dir
+        self.reclaim_after_s = reclaim_after_s
         self.sensors: dict[str, SensorState] = {}
         self.retired: dict[str, int] = {}  # evicted sensor -> lowest unused id
         # sensor -> its id floor on disk (every id it published is below); absent: read it
         self.id_floor: dict[str, int] = {}
         self.snapshot_done_at = time.monotonic()
+        # Sensors evicted by ``add`` to make room: the worker undeclares their publishers.
+        self.reclaimed_now: list[SensorState] = []
 
     def __len__(self) -> int:
         return len(self.sensors)
@@ -64,8 +74,9 @@ class SensorRegistry:
     # ------------------------------------------------------------------ admission
     def add(self, vehicle: str, sensor: str, seq: int) -> SensorState | None:
         """A new sensor, or None when the budget is spent. Its ids continue above any it
-        published before an eviction."""
-        if not self.budget.acquire():
+        published before an eviction. At capacity, this worker's longest silent sensor gives
+        way if it has been silent for over ``reclaim_after_s``."""
+        if not self.budget.acquire() and not (self._reclaim_one() and self.budget.acquire()):
             return None
         key = f"{vehicle}/{sensor}"
         state = SensorState(vehicle, sensor, self.new_tracker(), id_base=self.retired.pop(key, 0))
@@ -179,24 +190,43 @@ class SensorRegistry:
 
     # ------------------------------------------------------------------ eviction
     def evict_idle(self, now: float, idle_s: float) -> list[SensorState]:
-        """Drop the sensors silent for over ``idle_s``; their id reservation is written."""
-        gone = [(k, s) for k, s in list(self.sensors.items()) if now - s.last_seen > idle_s]
+        """Drop the sensors silent for over ``idle_s`` (over ``reclaim_after_s`` while every
+        slot of the budget is taken); their id reservation is written."""
+        full = self.budget.used >= self.budget.limit
+        limit = min(idle_s, self.reclaim_after_s) if full else idle_s
+        gone = [(k, s) for k, s in list(self.sensors.items()) if now - s.last_seen > limit]
         for key, s in gone:
-            self._evict(key, s)
+            self._evict(key, s, reclaimed=now - s.last_seen <= idle_s)
         return [s for _, s in gone]
 
-    def _evict(self, key: str, s: SensorState) -> None:
+    def _reclaim_one(self) -> bool:
+        """Evict the longest silent sensor if silent for over ``reclaim_after_s``."""
+        if not self.sensors:
+            return False
+        now = time.monotonic()
+        key, s = min(self.sensors.items(), key=lambda kv: kv[1].last_seen)
+        if now - s.last_seen <= self.reclaim_after_s:
+            return False
+        self._evict(key, s, reclaimed=True)
+        self.reclaimed_now.append(s)
+        return True
+
+    def _evict(self, key: str, s: SensorState, reclaimed: bool = False) -> None:
         del self.sensors[key]
         self.retired[key] = s.id_next
         while len(self.retired) > MAX_RETIRED:
             del self.retired[next(iter(self.retired))]
         self.budget.release()
         m = self.metrics
-        m.evicted.inc()
+        (m.reclaimed if reclaimed else m.evicted).inc()
         m.active_sensors.dec()
         m.active_tracks.dec(s.active_tracks)
         log.info(
-            "sensor_evicted", vehicle=s.vehicle, sensor=s.sensor, seq=s.last_seq, id_next=s.id_next
+            "sensor_reclaimed" if reclaimed else "sensor_evicted",
+            vehicle=s.vehicle,
+            sensor=s.sensor,
+            seq=s.last_seq,
+            id_next=s.id_next,
         )
         self._write([(s, False)])
 

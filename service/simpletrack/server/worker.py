@@ -82,6 +82,7 @@ class Worker(threading.Thread):
             digest=ctx.tracker_config_digest,
             writer=ctx.writer,
             state_dir=s.state_dir,
+            reclaim_after_s=s.reset_gap_s,
         )
         self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance)
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
@@ -102,7 +103,7 @@ class Worker(threading.Thread):
                     else:
                         self._process(item)
                 elif isinstance(item, Dropped):
-                    self._drop(item.item, item.reason, counted=True)
+                    self._announce(item)
                 elif item is not None:
                     item()
                 if time.monotonic() >= self._next_housekeeping:
@@ -115,7 +116,10 @@ class Worker(threading.Thread):
     def _housekeeping(self) -> None:
         now = time.monotonic()
         self._next_housekeeping = now + HOUSEKEEPING_S
-        for s in self.sensors.evict_idle(now, self.ctx.settings.sensor_idle_s):
+        gone = self.sensors.evict_idle(now, self.ctx.settings.sensor_idle_s)
+        gone += self.sensors.reclaimed_now
+        self.sensors.reclaimed_now = []
+        for s in gone:
             self.outbox.forget(s.vehicle, s.sensor)
         if now >= self._next_snapshot:
             self._next_snapshot = now + self.ctx.settings.snapshot_interval_s
@@ -153,7 +157,10 @@ class Worker(threading.Thread):
         if state is None:
             state = self.sensors.add(vehicle, sensor, seq)
             if state is None:
-                detail = f"already tracking max_sensors={ctx.budget.limit} sensors"
+                detail = (
+                    f"already tracking max_sensors={ctx.budget.limit} sensors, none of this "
+                    f"worker's silent for over reset_gap_s"
+                )
                 r = Rejection(ErrorReason.TOO_MANY_SENSORS, None, detail, seq, stamp_ns)
                 self._refuse(item, vehicle, sensor, None, r)
                 return
@@ -317,6 +324,13 @@ class Worker(threading.Thread):
             log.warning(
                 "frame_rejected", key=item.key, reason=r.reason.value, unpublished=str(e)[:200]
             )
+
+    def _announce(self, d: Dropped) -> None:
+        """One notice for frames the queue gave up (counted when they were given up)."""
+        vehicle, sensor = self.ctx.keys.sensor_of(d.key) or ("", "")
+        if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
+            held = self.sensors.get(f"{vehicle}/{sensor}") is not None
+            self.outbox.drops(vehicle, sensor, d.reason, d.seqs, d.stamp_ns, d.received_ns, held)
 
     def _drop(self, item: Inbound, reason: ErrorReason, counted: bool = False) -> None:
         """Report a frame shed under load (its header is read, nothing else)."""
