@@ -64,6 +64,7 @@ class FaultResult:
     recovered: int = 0
     unanswered: int = 0
     ids_kept: str = "-"
+    ids_reused: int = 0
     bystander_sent: int = 0
     bystander_tracked: int = 0
     bystander_p50_ms: float = float("nan")
@@ -102,6 +103,16 @@ class Stream:
             with self.lock:
                 self.errors.append(err)
 
+    def ids_seen(self, t0: float, t1: float) -> dict[int, set[int]]:
+        """Every id each car had among the frames sent in [t0, t1) (wall time)."""
+        stamps = {s for _, s, w in self.sent if t0 <= w < t1}
+        out: dict[int, set[int]] = {}
+        with self.lock:
+            for stamp in stamps & set(self.tracked):
+                for car, tid in self.tracked[stamp][1].items():
+                    out.setdefault(car, set()).add(tid)
+        return out
+
     def ids_between(self, t0: float, t1: float) -> dict[int, int]:
         """Each car's most frequent id among the frames sent in [t0, t1) (wall time)."""
         stamps = {s for _, s, w in self.sent if t0 <= w < t1}
@@ -137,8 +148,15 @@ class Stream:
 class Harness:
     """A service (optionally behind a router), and the streams of one scenario."""
 
-    def __init__(self, work: Path, via_router: bool = False, *serve_args: str) -> None:
+    def __init__(
+        self,
+        work: Path,
+        via_router: bool = False,
+        *serve_args: str,
+        env: dict[str, str] | None = None,
+    ) -> None:
         self.work = work
+        self.env = {**os.environ, **(env or {})}
         self.state_dir = work / "state"
         self.serve_args = serve_args
         self.router: subprocess.Popen[bytes] | None = None
@@ -184,7 +202,7 @@ class Harness:
             "--state-dir", str(self.state_dir), "--log-level", "warning", *self.serve_args,
         ]  # fmt: skip
         log = open(self.work / "service.log", "ab")  # noqa: SIM115 - the child writes to it
-        self.service = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log)
+        self.service = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=log, env=self.env)
         log.close()
         self.wait_ready()
 
@@ -283,25 +301,32 @@ def _kept(before: dict[int, int], after: dict[int, int]) -> str:
     return f"{same}/{len(before)}"
 
 
+def _reused(before: dict[int, set[int]], after: dict[int, set[int]]) -> int:
+    """Ids that name another car after the fault than before it: a planner would mix them."""
+    owner = {tid: car for car, ids in before.items() for tid in ids}
+    return sum(owner.get(tid, car) != car for car, ids in after.items() for tid in ids)
+
+
 # --- scenarios ----------------------------------------------------------------------------
 Scenario = Callable[[Path], FaultResult]
+Pubs = dict[str, DetectionPublisher]
+Act = Callable[[Harness, Pubs, zenoh.Session, FaultResult], tuple[float, float] | None]
 
 
 def _run(
     work: Path,
     name: str,
     fault: str,
-    act: Callable[
-        [Harness, dict[str, DetectionPublisher], zenoh.Session], tuple[float, float] | None
-    ],
+    act: Act,
     via_router: bool = False,
     serve_args: tuple[str, ...] = (),
     before_s: float = 3.0,
     after_s: float = 4.0,
+    env: dict[str, str] | None = None,
 ) -> FaultResult:
     """Stream victim and bystander for ``before_s``, run ``act`` (returns the down window in
     wall time, if any), keep streaming ``after_s``; compare ids before and after."""
-    h = Harness(work, via_router, *serve_args)
+    h = Harness(work, via_router, *serve_args, env=env)
     result = FaultResult(name, fault)
     victim, bystander = Stream("victim", "lidar"), Stream("bystander", "lidar")
     try:
@@ -333,7 +358,7 @@ def _run(
                 t.start()
             time.sleep(before_s)
             fault_at = time.time()
-            down = act(h, pubs, session)
+            down = act(h, pubs, session, result)
             back_at = time.time()
             time.sleep(after_s)
             stop.set()
@@ -341,8 +366,12 @@ def _run(
                 t.join(5)
             time.sleep(1.0)  # the last answers arrive
             before = victim.ids_between(fault_at - 1.0, fault_at)
+            # The first second after the fault is left out: answers to it may still be in flight.
             after = victim.ids_between(back_at + 1.0, back_at + after_s)
             result.ids_kept = _kept(before, after)
+            result.ids_reused = _reused(
+                victim.ids_seen(0.0, fault_at), victim.ids_seen(back_at, back_at + after_s + 1.0)
+            )
             victim.fill(result, down)
             result.bystander_sent = len(bystander.sent)
             result.bystander_tracked, p50, p99 = bystander.latency()
@@ -357,7 +386,7 @@ def _run(
 
 
 def publisher_restart(work: Path) -> FaultResult:
-    def act(h: Harness, pubs: dict[str, DetectionPublisher], session: zenoh.Session) -> None:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
         pubs["victim"].close()
         pubs["victim"] = DetectionPublisher(session, "victim", "lidar", classes=CLASSES)
 
@@ -365,9 +394,7 @@ def publisher_restart(work: Path) -> FaultResult:
 
 
 def service_crash(work: Path) -> FaultResult:
-    def act(
-        h: Harness, pubs: dict[str, DetectionPublisher], session: zenoh.Session
-    ) -> tuple[float, float]:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> tuple[float, float]:
         start = time.time()
         h.stop_service(signal.SIGKILL)
         h.start_service()
@@ -377,9 +404,7 @@ def service_crash(work: Path) -> FaultResult:
 
 
 def router_blip(work: Path) -> FaultResult:
-    def act(
-        h: Harness, pubs: dict[str, DetectionPublisher], session: zenoh.Session
-    ) -> tuple[float, float]:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> tuple[float, float]:
         start = time.time()
         h.kill_router()
         time.sleep(3.0)
@@ -391,7 +416,7 @@ def router_blip(work: Path) -> FaultResult:
 
 
 def heavy_frame(work: Path) -> FaultResult:
-    def act(h: Harness, pubs: dict[str, DetectionPublisher], session: zenoh.Session) -> None:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
         rng = np.random.default_rng(0)
         for k in range(2):
             n = 3000
@@ -420,7 +445,7 @@ def heavy_frame(work: Path) -> FaultResult:
 
 
 def garbage_flood(work: Path) -> FaultResult:
-    def act(h: Harness, pubs: dict[str, DetectionPublisher], session: zenoh.Session) -> None:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
         key = Keys().detections("noisy", "lidar")
         with session.declare_publisher(
             key, congestion_control=zenoh.CongestionControl.BLOCK
@@ -433,7 +458,7 @@ def garbage_flood(work: Path) -> FaultResult:
 
 
 def query_flood(work: Path) -> FaultResult:
-    def act(h: Harness, pubs: dict[str, DetectionPublisher], session: zenoh.Session) -> None:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
         end = time.monotonic() + 2.0
         selector = Keys().snapshot()
         while time.monotonic() < end:
@@ -441,6 +466,86 @@ def query_flood(work: Path) -> FaultResult:
                 session.get(selector, timeout=1.0)  # replies are never read: a flood
 
     return _run(work, "query_flood", "wildcard snapshot queries for 2 s", act)
+
+
+def slot_exhaustion(work: Path) -> FaultResult:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
+        for i in range(40):  # one frame each on distinct keys: every slot taken
+            payload = encode_detection_frame(
+                vehicle=f"squat{i:02d}", sensor="lidar", seq=0, stamp_ns=time.time_ns(),
+                frame_id="lidar", boxes=_boxes(np.zeros((1, 3))),
+            )  # fmt: skip
+            session.put(Keys().detections(f"squat{i:02d}", "lidar"), payload)
+        newcomer = Stream("newcomer", "lidar")
+        stop = threading.Event()
+        with _listening(session, newcomer):
+            pub = DetectionPublisher(session, "newcomer", "lidar", classes=CLASSES)
+            started = time.time()
+            _drive(lambda: pub, newcomer, 8.0, stop, started)
+            time.sleep(0.5)
+            pub.close()
+        first = min((w for _, s, w in newcomer.sent if s in newcomer.tracked), default=None)
+        wait = "never" if first is None else f"{first - started:.1f} s"
+        r.notes.append(
+            f"a new sensor at capacity (max_sensors 10): {len(newcomer.tracked)} of "
+            f"{len(newcomer.sent)} frames tracked, first after {wait}, "
+            f"{len(newcomer.errors)} refused"
+        )
+
+    return _run(work, "slot_exhaustion", "40 one-frame sensors fill max_sensors=10", act,
+                env={"SIMPLETRACK_MAX_SENSORS": "10"}, after_s=3.0)  # fmt: skip
+
+
+def absurd_values(work: Path) -> FaultResult:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
+        for value in (3.4e38, 1e12, -1e9):
+            pubs["victim"].publish([Box(value, 0.0, 0.8, 0.0, 4.0, 1.8, 1.6, 0.9, "Car")])
+            time.sleep(0.1)
+
+    return _run(work, "absurd_values", "three frames with boxes at 3.4e38, 1e12, -1e9 m", act)
+
+
+def newline_key(work: Path) -> FaultResult:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> None:
+        payload = encode_detection_frame(
+            vehicle="victim", sensor="lidar", seq=0, stamp_ns=time.time_ns(),
+            frame_id="lidar", boxes=_boxes(np.zeros((1, 3))),
+        )  # fmt: skip
+        for _ in range(20):
+            try:
+                session.put("fleet/bad\n/lidar/detections", payload)
+            except Exception as exc:  # Zenoh may refuse the key itself
+                r.notes.append(f"Zenoh refused the key: {exc}"[:120])
+                return
+            time.sleep(0.05)
+
+    return _run(work, "newline_key", "20 frames on a key chunk ending in a newline", act)
+
+
+def damaged_snapshot(work: Path) -> FaultResult:
+    def act(h: Harness, pubs: Pubs, session: zenoh.Session, r: FaultResult) -> tuple[float, float]:
+        start = time.time()
+        h.stop_service(signal.SIGTERM)
+        for path in (h.state_dir / "victim").glob("lidar*"):
+            if path.suffix != ".ids":
+                path.write_bytes(path.read_bytes()[:20])  # truncated
+        h.start_service()
+        return start, time.time()
+
+    return _run(work, "damaged_snapshot", "SIGTERM, the snapshot truncated, restart", act,
+                via_router=True)  # fmt: skip
+
+
+def _boxes(centers: np.ndarray[Any, Any]) -> BoxArrays:
+    n = len(centers)
+    return BoxArrays(
+        classes=CLASSES,
+        class_index=np.zeros(n, np.int32),
+        center=np.asarray(centers, np.float32),
+        size=np.tile(np.array([4.0, 1.8, 1.6], np.float32), (n, 1)),
+        yaw=np.zeros(n, np.float32),
+        score=np.full(n, 0.9),
+    )
 
 
 SCENARIOS: dict[str, Scenario] = {
@@ -452,6 +557,10 @@ SCENARIOS: dict[str, Scenario] = {
         heavy_frame,
         garbage_flood,
         query_flood,
+        slot_exhaustion,
+        absurd_values,
+        newline_key,
+        damaged_snapshot,
     )
 }
 
@@ -472,7 +581,7 @@ def run_faults(names: list[str] | None = None) -> list[FaultResult]:
 def format_results(results: list[FaultResult]) -> str:
     head = (
         f"{'scenario':<18} {'sent':>5} {'tracked':>7} {'refused':>7} {'dropped':>7} "
-        f"{'announced':>9} {'recovered':>9} {'unanswered':>10} {'ids kept':>8} "
+        f"{'announced':>9} {'recovered':>9} {'unanswered':>10} {'ids kept':>8} {'reused':>6} "
         f"{'bystander p50/p99 ms':>21} {'loss':>5} {'peak MB':>8}"
     )
     rows = [head]
@@ -480,7 +589,7 @@ def format_results(results: list[FaultResult]) -> str:
         loss = r.bystander_sent - r.bystander_tracked
         rows.append(
             f"{r.scenario:<18} {r.sent:>5} {r.tracked:>7} {r.refused:>7} {r.dropped:>7} "
-            f"{r.announced:>9} {r.recovered:>9} {r.unanswered:>10} {r.ids_kept:>8} "
+            f"{r.announced:>9} {r.recovered:>9} {r.unanswered:>10} {r.ids_kept:>8} {r.ids_reused:>6} "
             f"{f'{r.bystander_p50_ms:.1f} / {r.bystander_p99_ms:.1f}':>21} {loss:>5} "
             f"{r.service_peak_mb:>8.0f}"
         )
