@@ -14,8 +14,9 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +24,10 @@ import pytest
 import yaml
 import zenoh
 
+from simpletrack.client import DetectionPublisher
 from simpletrack.session import open_session
-from tests.service_helpers import free_port, wait_for
+from tests.faults.router_process import start_client_service
+from tests.service_helpers import Client, free_port, metric, moving_cars, stamp, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 ZENOH_DIR = ROOT / "deploy" / "zenoh"
@@ -169,14 +172,30 @@ class Router:
     def __init__(self, certs: Path) -> None:
         self.tls = f"tls/127.0.0.1:{free_port()}"
         self.tcp = f"tcp/127.0.0.1:{free_port()}"
+        self._certs = certs
+        self.session = self._open()
+
+    def _open(self) -> zenoh.Session:
         config = load(MTLS)
         config.insert_json5("listen/endpoints", json.dumps([self.tls, self.tcp]))
         config.insert_json5("connect/endpoints", "[]")
         tls = "transport/link/tls"
-        config.insert_json5(f"{tls}/root_ca_certificate", json.dumps(str(certs / "ca.pem")))
-        config.insert_json5(f"{tls}/listen_private_key", json.dumps(str(certs / "gateway.key")))
-        config.insert_json5(f"{tls}/listen_certificate", json.dumps(str(certs / "gateway.pem")))
-        self.session = zenoh.open(config)
+        for key, name in (
+            ("root_ca_certificate", "ca.pem"),
+            ("listen_private_key", "gateway.key"),
+            ("listen_certificate", "gateway.pem"),
+        ):
+            config.insert_json5(f"{tls}/{key}", json.dumps(str(self._certs / name)))
+        return zenoh.open(config)
+
+    def restart_after(self, outage_s: float, during: Callable[[], None]) -> None:
+        """Every link cut (the router gone), ``during`` called until ``outage_s`` has
+        passed, then the router back on the same addresses: its clients reconnect."""
+        self.session.close()  # type: ignore[no-untyped-call]
+        deadline = time.monotonic() + outage_s
+        while time.monotonic() < deadline:
+            during()
+        self.session = self._open()
 
 
 def vehicle_session(router: Router, certs: Path, name: str | None) -> zenoh.Session:
@@ -196,11 +215,13 @@ def vehicle_session(router: Router, certs: Path, name: str | None) -> zenoh.Sess
 class Inbox:
     def __init__(self) -> None:
         self.keys: list[str] = []
+        self.payloads: list[bytes] = []
         self._lock = threading.Lock()
 
     def __call__(self, sample: zenoh.Sample) -> None:
         with self._lock:
             self.keys.append(str(sample.key_expr))
+            self.payloads.append(sample.payload.to_bytes())
 
     def snapshot(self) -> list[str]:
         with self._lock:
@@ -265,6 +286,131 @@ def test_each_vehicle_reaches_only_its_own_keys(router: Router, certs: Path) -> 
     finally:
         truck.close()  # type: ignore[no-untyped-call]
         service.close()  # type: ignore[no-untyped-call]
+
+
+PERIOD_S = 0.1
+TRUCK_CACHE = "fleet/truck-07/lidar/detections/@adv/**"  # what a service asks after a gap
+
+
+@pytest.mark.zenoh
+def test_frames_sent_while_the_router_is_down_are_recovered_through_it(
+    router: Router, certs: Path, tmp_path: Path
+) -> None:
+    """The rules let a service ask a vehicle's cache for what it missed: truck-07 streams
+    at 10 Hz over mTLS, the router goes away for 2 s (every link cut) and comes back; every
+    frame is tracked in order and none is counted as missed."""
+    service = start_client_service(tmp_path, router.tcp, instance="acl-recover")
+    planner: Client | None = None
+    truck = vehicle_session(router, certs, "truck-07")
+    try:
+        wait_for(lambda: service.http("/readyz")[0] == 200, 30, "the service ready")
+        planner = Client(router.tcp)
+        pub = DetectionPublisher(truck, "truck-07", "lidar", classes=("Car",))
+        assert pub.wait_for_service(10)
+        t0 = time.monotonic()
+
+        def send() -> None:
+            k = pub.next_seq
+            pub.publish(moving_cars(k), stamp_ns=stamp(k))
+            time.sleep(max(0.0, t0 + (k + 1) * PERIOD_S - time.monotonic()))
+
+        for _ in range(10):
+            send()
+        router.restart_after(2.0, during=send)
+        wait_for(lambda: pub.delivering, 15, "the truck reconnected")
+        for _ in range(10):
+            send()
+        sent = pub.next_seq
+        assert pub.held >= 10, "the break did not hold frames back"
+
+        def tracked() -> list[int]:
+            assert planner is not None
+            with planner.received.lock:
+                return [f.seq for f, _ in planner.received.tracks.get("truck-07/lidar", [])]
+
+        def counted(name: str, **labels: str) -> float:
+            return metric(service.metrics(), f"simpletrack_frames_{name}_total", **labels)
+
+        # The service's own count: the planner reconnects on its own schedule and may miss
+        # the first recovered tracks, the service has tracked them all the same.
+        wait_for(lambda: counted("tracked") >= sent, 20, "every frame tracked")
+        assert counted("tracked") == sent
+        assert counted("dropped", reason="missed") == 0
+        wait_for(lambda: tracked()[-1:] == [sent - 1], 10, "the last frame's tracks")
+        seqs = tracked()
+        assert seqs == sorted(set(seqs)), "recovered frames must come before later live ones"
+        pub.close()
+    finally:
+        if planner is not None:
+            planner.close()
+        truck.close()  # type: ignore[no-untyped-call]
+        service.stop()
+
+
+@pytest.mark.zenoh
+def test_another_vehicle_can_neither_feed_nor_read_a_vehicles_cache(
+    router: Router, certs: Path
+) -> None:
+    service = open_session(mode="client", connect=[router.tcp])
+    truck = vehicle_session(router, certs, "truck-07")
+    # Two sessions with van-02's certificate: what one forges the other must not see
+    # locally (a session delivers its own puts and queries to itself, router or not).
+    van = vehicle_session(router, certs, "van-02")
+    forger = vehicle_session(router, certs, "van-02")
+    try:
+        seen = Inbox()  # the service's side: frames and the recovery keys (heartbeats)
+        service.declare_subscriber("fleet/*/*/detections", seen)
+        service.declare_subscriber("fleet/*/*/detections/@adv/**", seen)
+        snooped = Inbox()  # the van's attempts to watch the truck
+        van.declare_subscriber("fleet/truck-07/*/detections", snooped)
+        van.declare_subscriber(TRUCK_CACHE, snooped)
+        # A fake cache for the truck's sensor: were it declared, recovery would ask it.
+        fake = "fleet/truck-07/lidar/detections/@adv/pub/f00d/1/_"
+        forger.declare_queryable(fake, lambda q: q.reply(fake, b"spoofed"))
+        for key in ("fleet/truck-07/lidar/detections", fake):
+            spoof = forger.declare_publisher(key)
+            # The van is told of the service's subscriptions, so it does send.
+            wait_for(_matching(spoof), 10, "a match: the router refuses")
+            spoof.put(b"spoofed")
+
+        pub = DetectionPublisher(truck, "truck-07", "lidar", classes=("Car",))
+        assert pub.wait_for_service(10)
+        for k in range(3):
+            pub.publish(moving_cars(k), stamp_ns=stamp(k))
+
+        def cache(session: zenoh.Session, selector: str = TRUCK_CACHE) -> list[bytes]:
+            # As recovery does: the cache answers with the frames' own key, outside the
+            # query's, one reply per frame (all on that key: no consolidation).
+            replies = session.get(
+                selector,
+                accept_replies=zenoh.ReplyKeyExpr.ANY,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=1.0,
+            )
+            return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+
+        # The backbone reaches the truck's cache (all three frames), never the van's fake.
+        wait_for(lambda: len(cache(service)) == 3, 10, "the truck's cache on the backbone")
+        assert b"spoofed" not in cache(service)
+        assert cache(van) == []
+        assert cache(van, "fleet/*/*/detections/@adv/**") == []
+        frames = "fleet/truck-07/lidar/detections"
+        wait_for(lambda: seen.snapshot().count(frames) == 3, 10, "the truck's frames")
+        time.sleep(1.0)  # the truck's heartbeats come every 0.5 s: the van's would too
+        assert b"spoofed" not in seen.payloads
+        assert any("/@adv/pub/" in k for k in seen.snapshot()), "no heartbeat reached the service"
+        assert snooped.snapshot() == []
+        pub.close()
+    finally:
+        forger.close()  # type: ignore[no-untyped-call]
+        van.close()  # type: ignore[no-untyped-call]
+        truck.close()  # type: ignore[no-untyped-call]
+        service.close()  # type: ignore[no-untyped-call]
+
+
+def _matching(publisher: zenoh.Publisher) -> Callable[[], bool]:
+    # The stubs say bool; zenoh 1.10 returns a MatchingStatus.
+    return lambda: bool(getattr(publisher.matching_status, "matching", False))
 
 
 def _answer(query: zenoh.Query) -> None:
