@@ -121,3 +121,16 @@ def test_a_config_file_can_make_a_session_a_client(tmp_path: Path) -> None:
     f = _file(tmp_path, '{mode: "client", connect: {endpoints: ["tcp/127.0.0.1:7447"]}}')
     assert ZenohOptions(config_file=f).is_client()
     assert not ZenohOptions(config_file=f, mode=ZenohMode.PEER).is_client()
+
+
+def test_a_blocked_put_keeps_its_link_a_minute_unless_the_config_file_says_otherwise(
+    tmp_path: Path,
+) -> None:
+    # Zenoh's 5 s default closed the link mid-burst and lost the queued frames (tests/faults).
+    key = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+    assert json.loads(ZenohOptions().to_config().get_json(key)) == 60_000_000
+    f = _file(
+        tmp_path,
+        "{transport: {link: {tx: {queue: {congestion_control: {block: {wait_before_close: 7}}}}}}}",
+    )
+    assert json.loads(ZenohOptions(config_file=f).to_config().get_json(key)) == 7

@@ -39,6 +39,14 @@ ENDPOINT_LENGTH = (3, 256)
 # connect costs the router next to nothing, so a fleet retrying this often is affordable.
 DEFAULT_RECONNECT_MAX_MS = 1000
 RECONNECT_FIRST_MS = 100
+# Zenoh closes a link when a BLOCK put has waited this long for room (its default is 5 s) and
+# loses every sample queued on it, silently: a plain publisher's put just returns. A burst the
+# service needs longer than that to drain (loopback socket buffers alone held ~15,000 small
+# frames) lost 75% of its frames. The lease does not end a blocked put (a stopped service held
+# one for minutes with no limit here): this wait is what a hung peer costs its BLOCK publishers.
+BLOCK_WAIT_BEFORE_CLOSE_KEY = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_US = 5_000_000
+BLOCK_WAIT_BEFORE_CLOSE_US = 60_000_000
 
 
 class ZenohMode(StrEnum):
@@ -188,6 +196,11 @@ class ZenohOptions:
                 "period_increase_factor": 2,
             }
             config.insert_json5("connect/retry", json.dumps(retry))
+        if json.loads(config.get_json(BLOCK_WAIT_BEFORE_CLOSE_KEY)) == (
+            ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_US
+        ):
+            # Over a config file only Zenoh's default is replaced: a value set there is kept.
+            config.insert_json5(BLOCK_WAIT_BEFORE_CLOSE_KEY, json.dumps(BLOCK_WAIT_BEFORE_CLOSE_US))
         return config
 
     def is_client(self) -> bool:
