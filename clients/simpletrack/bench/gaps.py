@@ -1,7 +1,7 @@
 """How many track ids survive an outage: the KITTI train sequences replayed through the core
 tracker with the frames of ``[cut, cut + gap)`` left out, as the service bridges a gap in a
 sensor's stream (no reset; the next step predicts over the real dt, one missed frame for the
-life cycle).
+life cycle; the first frame after the gap is flagged ``after_gap`` as the service flags it).
 
     python -m simpletrack.bench.gaps --gaps 1,5,10,30 --json out/gaps.json
 
@@ -11,7 +11,9 @@ rule (3D IoU >= 0.25, per frame the most matches, then the least total 1 - IoU; 
 neighbour, e.g. Van for Car, takes part in the matching but is not counted) to track X in the
 last frame before the cut. It is *kept* if, in the first frame from ``cut + gap`` on in which it
 is matched at all, it is matched to X; *changed* if matched to another id; *gone* if never
-matched again (``gone_labelled`` of those are still in the labels after the gap). ``gap 0`` is
+matched again (``gone_labelled`` of those are still in the labels after the gap). *swapped*
+counts the ids X that, first matched after the gap, are matched to another object than the
+one they held before: an object that took another's id (worse than a new id). ``gap 0`` is
 the baseline: the cut frame simply follows, so ids changing without any outage show there.
 Each gap has its own cuts (a long gap needs a long sequence), so ``alive`` differs by gap.
 
@@ -131,6 +133,7 @@ class Survival:
     changed: int = 0
     gone: int = 0
     gone_labelled: int = 0
+    swapped: int = 0
     pred_err: list[float] = field(default_factory=list)
     still_err: list[float] = field(default_factory=list)
 
@@ -141,6 +144,7 @@ class Survival:
         self.changed += other.changed
         self.gone += other.gone
         self.gone_labelled += other.gone_labelled
+        self.swapped += other.swapped
         self.pred_err += other.pred_err
         self.still_err += other.still_err
 
@@ -168,9 +172,17 @@ class _Alive:
     obj: I64
     before: I64
     after: I64  # -1 until matched after the gap
+    holder: I64  # the object ``before`` is first matched to after the gap, -1 until then
 
     def resolve(self, obj: I64, ids: I64) -> None:
-        """Record the track ids of the still open objects among those matched now."""
+        """Record the track ids of the still open objects among those matched now, and the
+        objects the old ids are matched to."""
+        free = np.flatnonzero(self.holder == -1)
+        if free.size and ids.size:
+            by_id = np.argsort(ids)
+            pos = np.minimum(np.searchsorted(ids[by_id], self.before[free]), ids.size - 1)
+            hit = ids[by_id][pos] == self.before[free]
+            self.holder[free[hit]] = obj[by_id][pos[hit]]
         open_ = np.flatnonzero(self.after == -1)
         if open_.size == 0 or obj.size == 0:
             return
@@ -242,7 +254,7 @@ def sequence_survival(
                 continue
             fork = Tracker.from_bytes(snapshots[cut])
             alive = {
-                name: _Alive(obj, before, np.full(len(obj), -1, np.int64))
+                name: _Alive(obj, before, np.full(len(obj), -1, np.int64), np.full(len(obj), -1))
                 for name, (obj, before) in alive_at[cut].items()
             }
             first = cut + skip
@@ -254,7 +266,10 @@ def sequence_survival(
                 # Nothing left to learn once every open object has left the labels.
                 if max(a.horizon(truths[name]) for name, a in alive.items()) < k:
                     break
-                out = fork.step(Frame(boxes=frames[k].boxes, stamp=frames[k].stamp))
+                bridged = skip > 0 and k == first
+                out = fork.step(
+                    Frame(boxes=frames[k].boxes, stamp=frames[k].stamp, after_gap=bridged)
+                )
                 for name, truth in truths.items():
                     alive[name].resolve(*truth.matched(k, out))
             for name, a in alive.items():
@@ -265,6 +280,7 @@ def sequence_survival(
                 s.kept += int((~gone & (a.after == a.before)).sum())
                 s.changed += int((~gone & (a.after != a.before)).sum())
                 s.gone += int(gone.sum())
+                s.swapped += int(((a.holder != -1) & (a.holder != a.obj)).sum())
                 s.gone_labelled += sum(
                     truths[name].last_frame.get(int(o), -1) >= first for o in a.obj[gone].tolist()
                 )
@@ -321,7 +337,7 @@ def _fmt(v: object) -> str:
 
 
 def table(doc: dict[str, object]) -> str:
-    cols = ("cuts", "alive", "kept", "changed", "gone", "gone_labelled", "share_kept",
+    cols = ("cuts", "alive", "kept", "changed", "swapped", "gone", "gone_labelled", "share_kept",
             "pred_err_median_m", "still_err_median_m")  # fmt: skip
     head = ("gap s", *cols)
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]

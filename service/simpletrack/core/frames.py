@@ -18,12 +18,15 @@ I8 = npt.NDArray[np.int8]
 class Frame:
     """One sensor frame of detections. ``stamp`` in seconds (any monotonic origin);
     ``pose`` an optional 4x4 sensor->world transform; ``key_frame`` False marks the
-    paper's 10 Hz non-key frames."""
+    paper's 10 Hz non-key frames. ``after_gap`` marks the first frame after a gap in the
+    stream that the caller bridged (an outage, not a new stream): detections and tracks the
+    ordinary stages leave apart are re-associated across it (core/reassociation.py)."""
 
     boxes: Boxes
     stamp: float
     pose: F64 | None = None
     key_frame: bool = True
+    after_gap: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,6 +19,7 @@ from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
 from simpletrack.core.nms import drop_degenerate, nms
 from simpletrack.core.pairs import DENSE_CELLS, PairTable, far_cost
+from simpletrack.core.reassociation import reassociate
 from simpletrack.core.state import TrackTable, pack, unpack
 
 STATE_FORMAT = 1
@@ -105,6 +106,11 @@ class Tracker:
         update[matched_trk] = UpdateKind.MATCHED
         extended = self._stage2(row[is_low], tr.cls, table, update, key)
         update[extended] = UpdateKind.EXTENDED
+        if frame.after_gap:
+            matched_det, matched_trk, unmatched_det = self._across_gap(
+                dets, unmatched_det, matched_det, matched_trk, tr, pred_box, update, frame.stamp
+            )
+            update[matched_trk] = UpdateKind.MATCHED
 
         # Filter corrections: matched with their detection, extended with their own prediction.
         corrected = np.concatenate([matched_trk, extended])
@@ -348,6 +354,37 @@ class Tracker:
         r, c = table.rows, table.cols
         near = is_low[r] & eligible[c] & (table.dist <= self._stage2_max[trk_cls[c]])
         return np.unique(c[near]).astype(np.int64)
+
+    def _across_gap(
+        self,
+        dets: Boxes,
+        unmatched_det: I64,
+        matched_det: I64,
+        matched_trk: I64,
+        tr: TrackTable,
+        pred_box: F64,
+        update: npt.NDArray[np.int8],
+        stamp: float,
+    ) -> tuple[I64, I64, I64]:
+        """Stage-1 matches with the re-associated pairs added, and the detections still
+        unmatched (in their order: they are born next)."""
+        left = np.flatnonzero(update == UpdateKind.COASTED)
+        di, ti = reassociate(
+            dets.params[unmatched_det, :2],
+            dets.cls[unmatched_det],
+            pred_box[left, :2],
+            tr.cls[left],
+            stamp - tr.t_update[left],
+        )
+        if di.size == 0:
+            return matched_det, matched_trk, unmatched_det
+        still = np.ones(unmatched_det.size, dtype=bool)
+        still[di] = False
+        return (
+            np.concatenate([matched_det, unmatched_det[di]]),
+            np.concatenate([matched_trk, left[ti]]),
+            unmatched_det[still],
+        )
 
     def _transition(
         self,

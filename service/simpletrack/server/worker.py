@@ -9,7 +9,7 @@ import re
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import zenoh
 
@@ -154,6 +154,7 @@ class Worker(threading.Thread):
             return
 
         arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
+        bridged = False
         if state is None:
             state = self.sensors.add(vehicle, sensor, seq)
             if state is None:
@@ -177,6 +178,7 @@ class Worker(threading.Thread):
             if verdict.order.resets:
                 self._reset(state, verdict, seq, stamp_ns)
             elif verdict.order is Order.BRIDGE_GAP:
+                bridged = True
                 log.info(
                     "gap_bridged",
                     vehicle=vehicle,
@@ -188,6 +190,8 @@ class Worker(threading.Thread):
         stamp = state.tracker_stamp(stamp_ns)
         state.last_seen = time.monotonic()
         tframe, ignored = frame_from_wire(decoded, stamp)
+        if bridged:  # the core re-associates what the prediction over the gap missed
+            tframe = replace(tframe, after_gap=True)
         if ignored:
             m.boxes_ignored.inc(ignored)
         fp = FloatingPointErrors()
