@@ -8,6 +8,10 @@ Per service instance (``@`` chunks never match ``*``, so fleet wildcards cannot 
     <prefix>/@simpletrack/<instance>                               liveliness token
     <prefix>/@simpletrack/<instance>/status                        queryable: ServiceStatus
     <prefix>/@simpletrack/<instance>/snapshot/<vehicle>/<sensor>   queryable: SensorSnapshot
+Between the instances of a group (docs/SCALE.md):
+    <prefix>/@simpletrack/<instance>/handoff/<vehicle>/<sensor>    queryable: the holder
+                                                                   releases it, SensorSnapshot
+    <prefix>/@simpletrack/<standby>/checkpoint/<vehicle>/<sensor>  owner -> standby: SensorSnapshot
 """
 
 from __future__ import annotations
@@ -43,6 +47,26 @@ class Keys:
 
     def snapshot(self, instance: str = "*", vehicle: str = "*", sensor: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/snapshot/{vehicle}/{sensor}"
+
+    @property
+    def all_tracks(self) -> str:
+        return f"{self.prefix}/*/*/{TRACKS}"
+
+    def handoff(self, instance: str = "*", vehicle: str = "*", sensor: str = "*") -> str:
+        return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/handoff/{vehicle}/{sensor}"
+
+    def checkpoint(self, standby: str, vehicle: str = "*", sensor: str = "*") -> str:
+        return f"{self.prefix}/{SERVICE_CHUNK}/{standby}/checkpoint/{vehicle}/{sensor}"
+
+    def service_sensor_of(self, key: str) -> tuple[str, str] | None:
+        """(vehicle, sensor) of a ``<prefix>/@simpletrack/<instance>/<kind>/<v>/<s>`` key."""
+        head = f"{self.prefix}/{SERVICE_CHUNK}/"
+        if not key.startswith(head):
+            return None
+        parts = key[len(head) :].split("/")
+        if len(parts) != 4:
+            return None
+        return parts[2], parts[3]
 
     def sensor_of(self, key: str) -> tuple[str, str] | None:
         """(vehicle, sensor) of a ``.../<vehicle>/<sensor>/<leaf>`` key under this prefix."""

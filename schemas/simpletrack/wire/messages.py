@@ -156,6 +156,11 @@ class ServiceStatus:
     ready: bool
     queue_depth: int
     sensors: list[SensorStatus]
+    members: list[str] = dataclass_field(default_factory=list)
+    standby_sensors: int = 0
+    handoffs_in: int = 0
+    handoffs_out: int = 0
+    failovers: int = 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -305,6 +310,11 @@ SERVICE_STATUS = MapSpec(
         Field("ready", boolean),
         Field("queue_depth", _int64),
         Field("sensors", array(SENSOR_STATUS)),
+        Field("members", array(_name), []),
+        Field("standby_sensors", _int64, 0),
+        Field("handoffs_in", _int64, 0),
+        Field("handoffs_out", _int64, 0),
+        Field("failovers", _int64, 0),
     ],
 )
 SENSOR_SNAPSHOT = MapSpec(

@@ -221,7 +221,15 @@ class ServiceStatus(WireModel):
     started_ns: Int64
     ready: bool
     queue_depth: Int64
-    sensors: list[SensorStatus]
+    sensors: list[SensorStatus] = Field(description="the sensors this instance holds (owns)")
+    members: list[Name] = Field(
+        default_factory=list,
+        description="the live instances on this prefix in this one's view, itself included",
+    )
+    standby_sensors: Int64 = Field(default=0, description="sensors this instance stands by for")
+    handoffs_in: Int64 = Field(default=0, description="sensors received from a live member")
+    handoffs_out: Int64 = Field(default=0, description="sensors given to a live member")
+    failovers: Int64 = Field(default=0, description="sensors taken over from a member gone")
 
 
 class SensorSnapshot(WireModel):

@@ -22,7 +22,9 @@ import zenoh
 from zenoh import ext
 
 from simpletrack.core.tracker import Tracker
-from simpletrack.server.intake import Inbound, Intake, WorkQueue, depth, worker_index
+from simpletrack.server.custody import Shared
+from simpletrack.server.group import Membership, Role
+from simpletrack.server.intake import Inbound, Intake, Kind, WorkQueue, depth, worker_index
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
 from simpletrack.server.misses import MissCounter
@@ -33,11 +35,16 @@ from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
 from simpletrack.wire.codec import DecodeLimits, encode
+from simpletrack.wire.header import peek_header
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import ServiceStatus
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
 log = get_logger("service")
+# How long a starting member listens to the group's tokens before it takes frames: its
+# first view then holds the members already there (tokens arrive within milliseconds).
+SETTLE_S = 0.3
+MAX_PUBLISHED = 1_000_000
 
 
 class Service:
@@ -62,6 +69,18 @@ class Service:
         self._routers: RouterWatch | None = None
         self.misses: MissCounter | None = None
         self.http_port: int | None = None
+        self.membership = Membership(
+            settings.instance,
+            self.keys,
+            enabled=settings.group,
+            routers=self._routers_connected if self._client else None,
+            on_change=self._on_members,
+        )
+        self.metrics.members.set(1)
+        self._shared: Shared | None = None
+        self._subscriber: Any = None  # the detections subscriber: undeclared first at stop
+        self._token: Any = None
+        self._handoff_queryable: Any = None
 
     # ------------------------------------------------------------------ start
     def start(self) -> None:
@@ -80,6 +99,20 @@ class Service:
             s.state_dir.mkdir(parents=True, exist_ok=True)
             self._writer = SnapshotWriter()
         digest = config_digest(self.config)
+        self._shared = shared = Shared(
+            membership=self.membership,
+            session=session,
+            keys=self.keys,
+            metrics=self.metrics,
+            instance=s.instance,
+            digest=digest,
+            handoff_timeout_s=s.handoff_timeout_s,
+        )
+        if s.group:
+            self.membership.start(session)
+            # Whose tracks planners already have: a takeover publishes only past them.
+            self._declared.append(session.declare_subscriber(self.keys.all_tracks, self._on_tracks))
+            self.stop_requested.wait(SETTLE_S)
         ctx = Context(
             settings=s,
             session=session,
@@ -91,6 +124,7 @@ class Service:
             classes=self.config.class_names,
             budget=SensorBudget(s.max_sensors),
             writer=self._writer,
+            shared=shared,
             limits=DecodeLimits(max_bytes=s.max_frame_bytes, max_boxes=s.max_boxes),
         )
         self._queues = [WorkQueue(s.queue_size) for _ in range(s.workers)]
@@ -102,14 +136,34 @@ class Service:
                 self._workers[worker_index(key, s.workers)].sensors.restore_floor(
                     vehicle, sensor, floor
                 )
+            alone = len(self.membership.members) == 1
             for snap in read_all(s.state_dir):
-                key = self.keys.detections(snap.vehicle, snap.sensor)
-                self._workers[worker_index(key, s.workers)].sensors.adopt(snap)
+                if alone:
+                    key = self.keys.detections(snap.vehicle, snap.sensor)
+                    self._workers[worker_index(key, s.workers)].sensors.adopt(snap)
+                else:  # another member may hold it, fresher: used only if none does
+                    shared.local[f"{snap.vehicle}/{snap.sensor}"] = snap
         self._metrics_functions()
         for w in self._workers:
             w.start()
 
-        intake = Intake(self._queues, s.backpressure, self._on_received, self._on_dropped)
+        intake = Intake(
+            self._queues,
+            s.backpressure,
+            self._on_received,
+            self._on_dropped,
+            wanted=self._wanted if s.group else None,
+        )
+        if s.group:
+            self._declared.append(
+                session.declare_subscriber(
+                    self.keys.checkpoint(s.instance),
+                    lambda sample: self._on_checkpoint(intake, sample),
+                )
+            )
+            self._handoff_queryable = session.declare_queryable(
+                self.keys.handoff(s.instance), self._on_handoff_query
+            )
         self.misses = misses = MissCounter(intake, self.keys, self.metrics, s.instance, session)
         # Recovery asks a vehicle's cache for the frames a gap (or its heartbeat) shows were
         # missed and holds that vehicle's later frames until they come: order is kept.
@@ -122,15 +176,14 @@ class Service:
             history=ext.HistoryConfig(max_samples=s.history_frames),
             recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
         )
-        self._declared.append(subscriber.sample_miss_listener(misses.on_miss))
-        self._declared.append(subscriber)
+        self._subscriber = (subscriber.sample_miss_listener(misses.on_miss), subscriber)
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )
         self._declared.append(
             session.declare_queryable(self.keys.snapshot(s.instance), self._on_snapshot_query)
         )
-        self._declared.append(session.liveliness().declare_token(self.keys.liveliness(s.instance)))
+        self._token = session.liveliness().declare_token(self.keys.liveliness(s.instance))
         if self._routers is not None:
             self._declared.append(self._routers)
         self._ready = True
@@ -148,6 +201,8 @@ class Service:
             backpressure=s.backpressure.value,
             state_dir=str(s.state_dir) if s.state_dir else None,
             restored=sum(len(w.sensors) for w in self._workers),
+            group=s.group,
+            members=len(self.membership.members),
         )
 
     def _open_session(self) -> zenoh.Session | None:
@@ -164,6 +219,7 @@ class Service:
         return self._routers.routers if self._routers is not None else 0
 
     def _on_router_change(self, connected: bool, router: str) -> None:
+        self.membership.router_changed(connected)
         if connected:
             log.info("router_connected", router=router, routers=self._routers_connected())
         else:
@@ -173,6 +229,7 @@ class Service:
     def _metrics_functions(self) -> None:
         m = self.metrics
         m.queue_depth.set_function(lambda: depth(self._queues))
+        m.standby_sensors.set_function(lambda: self._standby_count())
         if self.settings.state_dir is None:
             m.snapshot_age.set(math.nan)  # no persistence configured
         else:
@@ -188,6 +245,77 @@ class Service:
         # see the outage.
         return not self._client or self._routers_connected() > 0
 
+    # ------------------------------------------------------------------ the group
+    def _standby_count(self) -> int:
+        return sum(len(w.custody.standby) for w in self._workers)
+
+    def _on_members(self, before: frozenset[str], after: frozenset[str]) -> None:
+        self.metrics.members.set(len(after))
+
+    def _wanted(self, key: str) -> bool:
+        """Zenoh callback, every frame: only frames of sensors this member owns or stands
+        by for go on; the others are counted (the price of the wide subscription)."""
+        names = self.keys.sensor_of(key)
+        if names is None or self.membership.role(f"{names[0]}/{names[1]}") is not Role.NONE:
+            return True
+        self.metrics.not_owned.inc()
+        return False
+
+    def _on_tracks(self, sample: zenoh.Sample) -> None:
+        names = self.keys.sensor_of(str(sample.key_expr))
+        if names is None or self._shared is None:
+            return
+        sensor = f"{names[0]}/{names[1]}"
+        if self.membership.role(sensor) is Role.NONE:
+            return
+        _, stamp = peek_header(sample.payload.to_bytes())
+        if stamp is None:
+            return
+        published = self._shared.published
+        with self._shared.lock:
+            if sensor in published or len(published) < MAX_PUBLISHED:
+                published[sensor] = max(stamp, published.get(sensor, stamp))
+
+    def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
+        names = self.keys.service_sensor_of(str(sample.key_expr))
+        if names is not None and all(NAME_RE.fullmatch(n) for n in names):
+            intake.checkpoint(sample, self.keys.detections(*names))
+
+    def _on_handoff_query(self, query: zenoh.Query) -> None:
+        """A member that owns a sensor in its view asks for it: the worker holding it
+        releases it and answers its exact state (after the workers stopped: answered here)."""
+        names = self.keys.service_sensor_of(str(query.key_expr))
+        asker = query.parameters.get("from")
+        if (
+            names is None
+            or not all(NAME_RE.fullmatch(n) for n in names)
+            or asker is None
+            or asker == self.settings.instance
+        ):
+            query.drop()  # type: ignore[no-untyped-call]
+            return
+        vehicle, sensor = names
+        worker = self._workers[
+            worker_index(self.keys.detections(vehicle, sensor), len(self._workers))
+        ]
+        reply_key = self.keys.handoff(self.settings.instance, vehicle, sensor)
+
+        key = f"{vehicle}/{sensor}"
+        if worker.sensors.get(key) is None and key not in worker.custody.released:
+            query.drop()  # type: ignore[no-untyped-call]
+            return  # the usual answer, at once: not held here
+        try:
+            # The worker's lock, not its queue: at most one frame's wait, and no cycle (a
+            # worker never holds it while asking a member).
+            with worker.lock:
+                snap = worker.custody.release(vehicle, sensor, asker)
+            if snap is not None:
+                query.reply(reply_key, encode(snap), encoding=MSGPACK)
+        except zenoh.ZError as e:
+            log.warning("query_reply_failed", key=reply_key, error=str(e))
+        finally:
+            query.drop()  # type: ignore[no-untyped-call]
+
     # ------------------------------------------------------------------ callbacks
     def _on_received(self, key: str) -> None:
         vehicle, _ = self.keys.sensor_of(key) or ("", "")
@@ -198,6 +326,8 @@ class Service:
         worker; a frame refused at shutdown is reported here (no worker will see it)."""
         vehicle, sensor = self.keys.sensor_of(item.key) or ("", "")
         self.metrics.count_error(reason, vehicle)
+        if item.kind is Kind.CHECKPOINT:
+            return  # the next checkpoint supersedes it: nothing a planner waits for
         if reason is ErrorReason.DROPPED_SHUTDOWN and self._session is not None:
             if NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor):
                 r = dropped(reason, item.payload)
@@ -229,6 +359,11 @@ class Service:
             ready=self.ready(),
             queue_depth=depth(self._queues),
             sensors=sensors,
+            members=sorted(self.membership.members),
+            standby_sensors=self._standby_count(),
+            handoffs_in=int(self.metrics.handoffs.labels(direction="in")._value.get()),
+            handoffs_out=int(self.metrics.handoffs.labels(direction="out")._value.get()),
+            failovers=int(self.metrics.failovers._value.get()),
         )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
@@ -300,15 +435,15 @@ class Service:
         self.stop_requested.set()
 
     def shutdown(self) -> None:
+        """Stop taking frames, finish the queued ones, then leave the group: the members
+        taking this one's sensors ask for them (or read the final checkpoints) while it
+        still answers; only then close."""
         s = self.settings
         self._ready = False
         log.info("service_stopping", instance=s.instance)
-        for entity in self._declared:
-            try:
-                entity.undeclare()
-            except (zenoh.ZError, RuntimeError) as e:
-                log.warning("undeclare_failed", error=str(e))
-        self._declared.clear()
+        if self._subscriber is not None:
+            self._undeclare(*self._subscriber)
+            self._subscriber = None
         deadline = time.monotonic() + s.shutdown_timeout_s
         for w in self._workers:
             w.drain_deadline = deadline
@@ -320,6 +455,16 @@ class Service:
                 log.error("worker_stuck", worker=w.index)
             else:  # it publishes no more: its unused reserved ids can go back
                 w.sensors.release_ids()
+        if self._token is not None:
+            self._undeclare(self._token)
+            self._token = None
+        self._await_handoffs()
+        if self._handoff_queryable is not None:
+            self._undeclare(self._handoff_queryable)
+            self._handoff_queryable = None
+        self._undeclare(*self._declared)
+        self._declared.clear()
+        self.membership.close()
         if self._writer is not None and not self._writer.close(timeout=s.shutdown_timeout_s):
             log.error("snapshot_writer_stuck")
         if self._session is not None:
@@ -331,6 +476,25 @@ class Service:
             instance=s.instance,
             sensors=sum(len(w.sensors) for w in self._workers),
         )
+
+    def _await_handoffs(self) -> None:
+        """Until every sensor held here was asked for, or ``handoff_timeout_s``."""
+        if not self.settings.group or len(self.membership.members) <= 1:
+            return
+        deadline = time.monotonic() + self.settings.handoff_timeout_s
+        held = sum(len(w.sensors) for w in self._workers)
+        while held and time.monotonic() < deadline:
+            time.sleep(0.02)
+            held = sum(len(w.sensors) for w in self._workers)
+        log.info("handoffs_done" if not held else "handoffs_timed_out", left_with_standby=held)
+
+    @staticmethod
+    def _undeclare(*entities: Any) -> None:
+        for entity in entities:
+            try:
+                entity.undeclare()
+            except (zenoh.ZError, RuntimeError) as e:
+                log.warning("undeclare_failed", error=str(e))
 
 
 def run(settings: ServiceSettings) -> int:

@@ -18,6 +18,7 @@ import zlib
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 
 import zenoh
 
@@ -31,14 +32,20 @@ MAX_QUERIES = 16
 _CONTROL = ""  # the queries' place in the rotation: no Zenoh key is empty
 
 
+class Kind(Enum):
+    DETECTIONS = "detections"
+    CHECKPOINT = "checkpoint"  # another member's state of a sensor this one stands by for
+
+
 @dataclass(frozen=True, slots=True)
 class Inbound:
-    """A detection payload as received: its key, bytes, and when it arrived."""
+    """A payload as received: its key, bytes, and when it arrived."""
 
     key: str
     payload: bytes
     received_ns: int  # wall clock (unix ns): goes on the wire
     received_at: float  # time.perf_counter(): measures the queue wait
+    kind: Kind = Kind.DETECTIONS
 
 
 @dataclass(slots=True)
@@ -150,10 +157,11 @@ class WorkQueue:
             self._cond.notify_all()
             return True
 
-    def put_control(self, fn: Callable[[], None]) -> bool:
-        """Queue a control callable; False (not queued) when ``max_control`` are waiting."""
+    def put_control(self, fn: Callable[[], None], force: bool = False) -> bool:
+        """Queue a control callable; False (not queued) when ``max_control`` are waiting,
+        unless ``force`` (the service's own, bounded by the sensors it takes over)."""
         with self._cond:
-            if len(self._control) >= self.max_control:
+            if len(self._control) >= self.max_control and not force:
                 return False
             if not self._control:
                 self._ring.append(_CONTROL)
@@ -216,11 +224,14 @@ class Intake:
         policy: Backpressure,
         on_received: Callable[[str], None],
         on_dropped: Callable[[Inbound, ErrorReason], None],
+        wanted: Callable[[str], bool] | None = None,
     ) -> None:
         self._queues = queues
         self._block = policy is Backpressure.BLOCK
         self._on_received = on_received
         self._on_dropped = on_dropped
+        # False: another member owns the key and this one does not stand by for it.
+        self._wanted = wanted
 
     def handler(
         self, callback: Callable[[zenoh.Sample], None] | None = None
@@ -235,9 +246,21 @@ class Intake:
 
     def __call__(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
+        if self._wanted is not None and not self._wanted(key):
+            return  # before any copy: the cheapest a frame of another member can cost
         item = Inbound(key, sample.payload.to_bytes(), time.time_ns(), time.perf_counter())
         self._on_received(key)
-        q = self._queues[worker_index(key, len(self._queues))]
+        self._enqueue(key, item)
+
+    def checkpoint(self, sample: zenoh.Sample, detections_key: str) -> None:
+        """A checkpoint goes to the worker of the sensor it is of (its own lane)."""
+        key = str(sample.key_expr)
+        payload = sample.payload.to_bytes()
+        item = Inbound(key, payload, time.time_ns(), time.perf_counter(), Kind.CHECKPOINT)
+        self._enqueue(detections_key, item)
+
+    def _enqueue(self, route: str, item: Inbound) -> None:
+        q = self._queues[worker_index(route, len(self._queues))]
         if self._block:
             accepted, evicted = q.put_blocking(item), None
         else:
@@ -252,4 +275,13 @@ def depth(queues: list[WorkQueue]) -> int:
     return sum(len(q) for q in queues)
 
 
-__all__ = ["MAX_QUERIES", "Dropped", "Inbound", "Intake", "WorkQueue", "depth", "worker_index"]
+__all__ = [
+    "MAX_QUERIES",
+    "Dropped",
+    "Inbound",
+    "Intake",
+    "Kind",
+    "WorkQueue",
+    "depth",
+    "worker_index",
+]

@@ -158,6 +158,45 @@ class Metrics:
             "Times a connection to a Zenoh router was lost",
             registry=r,
         )
+        # The group (docs/SCALE.md)
+        self.members = Gauge(
+            "simpletrack_group_members",
+            "Live instances on this prefix, this one included (its view)",
+            registry=r,
+        )
+        self.standby_sensors = Gauge(
+            "simpletrack_standby_sensors",
+            "Sensors this instance stands by for (keeps their checkpoints and recent frames)",
+            registry=r,
+        )
+        self.handoffs = Counter(
+            "simpletrack_handoffs",
+            "Sensors handed over between live instances with their exact state",
+            ["direction"],
+            registry=r,
+        )
+        self.failovers = Counter(
+            "simpletrack_failovers",
+            "Sensors taken over from a member gone without handing them over (from its checkpoint)",
+            registry=r,
+        )
+        self.replayed = Counter(
+            "simpletrack_replayed_frames",
+            "Frames tracked again at a takeover, after the state it started from",
+            registry=r,
+        )
+        self.not_owned = Counter(
+            "simpletrack_frames_not_owned",
+            "Detection frames heard for sensors of other members, dropped before decoding",
+            registry=r,
+        )
+        self.checkpoints_sent = Counter(
+            "simpletrack_checkpoints_sent",
+            "Sensor states sent to their standby member",
+            registry=r,
+        )
+        for direction in ("in", "out"):
+            self.handoffs.labels(direction=direction)
         self.build = Info("simpletrack_build", "Versions of this service", registry=r)
         self.build.info(
             {

@@ -148,6 +148,10 @@ class Outbox:
             detail=r.detail,
         )
 
+    def notice(self, err: FrameError) -> None:
+        """Publish a notice built elsewhere (frames missed at a takeover)."""
+        self._publish(err, held=True)
+
     def _publish(self, err: FrameError, held: bool) -> None:
         vehicle, sensor = err.vehicle, err.sensor
         payload = encode_message(err)

@@ -93,13 +93,15 @@ class SensorRegistry:
         self.id_floor[key] = floor
         self.retired[key] = max(self.retired.get(key, 0), floor)
 
-    def adopt(self, snap: SensorSnapshot) -> None:
-        """Take over a sensor from the state directory (before the worker starts)."""
+    def adopt(self, snap: SensorSnapshot, use_floor: bool = True) -> SensorState | None:
+        """Take over a sensor from a snapshot: the state directory's (before the worker
+        starts, or at a takeover when no member has it) or another member's (a hand-off or
+        a checkpoint: ``use_floor`` False, its ids are exact, this disk's floor is older)."""
         key = f"{snap.vehicle}/{snap.sensor}"
-        floor = max(snap.id_next, self.id_floor.get(key, 0))
+        floor = max(snap.id_next, self.id_floor.get(key, 0)) if use_floor else snap.id_next
         if snap.tracker is None:
-            self.retired[key] = floor
-            return
+            self.retired[key] = max(self.retired.get(key, 0), floor)
+            return None
         tracker: Tracker | None = None
         id_base = snap.id_base
         if snap.config_digest != self.digest:
@@ -123,8 +125,8 @@ class SensorRegistry:
         if not self.budget.acquire():
             log.error("snapshot_over_max_sensors", vehicle=snap.vehicle, sensor=snap.sensor)
             self.retired[key] = floor
-            return
-        self.sensors[key] = SensorState(
+            return None
+        state = self.sensors[key] = SensorState(
             vehicle=snap.vehicle,
             sensor=snap.sensor,
             tracker=tracker,
@@ -134,7 +136,8 @@ class SensorRegistry:
             frames=snap.frames,
             dirty=False,
         )
-        self.metrics.restored.inc()
+        if use_floor:
+            self.metrics.restored.inc()
         self.metrics.active_sensors.inc()
         log.info(
             "sensor_restored",
@@ -144,6 +147,14 @@ class SensorRegistry:
             id_next=snap.id_next,
             id_floor=floor,
         )
+        return state
+
+    def release(self, key: str) -> None:
+        """The sensor now belongs to another member: forget it here (its ids, as far as
+        this member took them, stay retired: a fresh start here continues above them)."""
+        s = self.sensors.get(key)
+        if s is not None:
+            self._evict(key, s, handed_off=True)
 
     # ------------------------------------------------------------------ id reservations
     def reserve_ids(self, s: SensorState) -> None:
@@ -211,18 +222,25 @@ class SensorRegistry:
         self.reclaimed_now.append(s)
         return True
 
-    def _evict(self, key: str, s: SensorState, reclaimed: bool = False) -> None:
+    def _evict(
+        self, key: str, s: SensorState, reclaimed: bool = False, handed_off: bool = False
+    ) -> None:
         del self.sensors[key]
         self.retired[key] = s.id_next
         while len(self.retired) > MAX_RETIRED:
             del self.retired[next(iter(self.retired))]
         self.budget.release()
         m = self.metrics
-        (m.reclaimed if reclaimed else m.evicted).inc()
+        if not handed_off:
+            (m.reclaimed if reclaimed else m.evicted).inc()
         m.active_sensors.dec()
         m.active_tracks.dec(s.active_tracks)
+        if handed_off:
+            event = "sensor_released"
+        else:
+            event = "sensor_reclaimed" if reclaimed else "sensor_evicted"
         log.info(
-            "sensor_reclaimed" if reclaimed else "sensor_evicted",
+            event,
             vehicle=s.vehicle,
             sensor=s.sensor,
             seq=s.last_seq,

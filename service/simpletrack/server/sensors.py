@@ -74,6 +74,8 @@ class SensorState:
     active_tracks: int = 0
     last_seen: float = field(default_factory=time.monotonic)
     dirty: bool = True
+    # (standby, frames) of the last checkpoint sent: unchanged, nothing to send
+    checkpoint_mark: tuple[str, int] | None = None
     _undo: _Undo | None = None
 
     @property

@@ -232,6 +232,22 @@ class ServiceSettings(BaseSettings):
     snapshot_interval_s: Seconds = Field(
         default=10.0, description="periodic snapshot interval: a crash loses at most this much"
     )
+    group: bool = Field(
+        default=True,
+        description="share the prefix's sensors with the other instances on it: each sensor tracked by one (false: track every sensor heard)",
+    )
+    checkpoint_interval_s: Seconds = Field(
+        default=1.0,
+        description="how often an owner sends each changed sensor's state to its standby member",
+    )
+    standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
+        default=100,
+        description="frames per sensor a standby member keeps since the last checkpoint (replayed at a takeover)",
+    )
+    handoff_timeout_s: Seconds = Field(
+        default=1.0,
+        description="how long a takeover waits for the holder's answer, and a leaving instance for its sensors to be taken",
+    )
     shutdown_timeout_s: Seconds = Field(
         default=20.0, description="on SIGTERM, how long queued frames may take to drain"
     )

@@ -8,14 +8,17 @@ from __future__ import annotations
 import re
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import zenoh
 
 from simpletrack.core.tracker import Tracker
+from simpletrack.server.custody import HANDOFF_TRIES, Custody, Shared
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
-from simpletrack.server.intake import Dropped, Inbound, WorkQueue
+from simpletrack.server.group import Role
+from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import Outbox, congestion_control, dropped
@@ -40,9 +43,10 @@ from simpletrack.wire.codec import (
 )
 from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
+from simpletrack.wire.header import peek_header
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.models import NAME_PATTERN
-from simpletrack.wire.reasons import ErrorReason
+from simpletrack.wire.models import NAME_PATTERN, FrameError, SensorSnapshot
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
 NAME_RE = re.compile(NAME_PATTERN)
@@ -63,6 +67,7 @@ class Context:
     classes: tuple[str, ...]  # the tracks' class table
     budget: SensorBudget
     writer: SnapshotWriter | None
+    shared: Shared
     limits: DecodeLimits = field(default_factory=DecodeLimits)
 
     @property
@@ -86,8 +91,19 @@ class Worker(threading.Thread):
         )
         self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance)
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
+        self.custody = Custody(ctx.shared, self.sensors, self.outbox, s.standby_frames)
         self.drain_deadline: float | None = None
+        self.stopped = threading.Event()
+        # Held while an item is handled: a member asking for a sensor takes it to release
+        # the sensor from its own thread. Never held while waiting on another member.
+        self.lock = threading.Lock()
+        # vehicle/sensor -> (covered, published) stamps after a takeover: frames up to the
+        # first are in the state taken over; up to the second, planners have their tracks.
+        self._limits: dict[str, tuple[int | None, int | None]] = {}
+        self._pending: dict[str, deque[Inbound]] = {}  # sensors asked for, their frames
+        self._quiet = False
         self._next_snapshot = time.monotonic() + s.snapshot_interval_s
+        self._next_checkpoint = time.monotonic() + s.checkpoint_interval_s
         self._next_housekeeping = time.monotonic() + HOUSEKEEPING_S
 
     # ------------------------------------------------------------------ the loop
@@ -97,21 +113,37 @@ class Worker(threading.Thread):
             if item is None and self.queue.closed:
                 break
             try:
-                if isinstance(item, Inbound):
-                    if self.drain_deadline is not None and time.monotonic() > self.drain_deadline:
-                        self._drop(item, ErrorReason.DROPPED_SHUTDOWN)
-                    else:
-                        self._process(item)
-                elif isinstance(item, Dropped):
-                    self._announce(item)
-                elif item is not None:
-                    item()
-                if time.monotonic() >= self._next_housekeeping:
-                    self._housekeeping()
+                with self.lock:
+                    if isinstance(item, Inbound):
+                        if item.kind is Kind.CHECKPOINT:
+                            self.custody.on_checkpoint(item)
+                        elif (
+                            self.drain_deadline is not None
+                            and time.monotonic() > self.drain_deadline
+                        ):
+                            self._drop(item, ErrorReason.DROPPED_SHUTDOWN)
+                        else:
+                            self._process(item)
+                    elif isinstance(item, Dropped):
+                        self._announce(item)
+                    elif item is not None:
+                        item()
+                    if time.monotonic() >= self._next_housekeeping:
+                        self._housekeeping()
             except Exception:  # never let one frame kill the thread of many sensors
                 log.error("worker_error", exc=True, worker=self.index)
+        self._settle_pending()
         self.sensors.snapshot_dirty()
+        # Every sensor's exact state to the member that takes it when this one leaves.
+        self.custody.send_checkpoints(final=True)
         self.outbox.close()
+        self.stopped.set()
+
+    def _settle_pending(self) -> None:
+        """At the end, takeovers still waiting for answers finish with what they have."""
+        for key in list(self._pending):
+            vehicle, sensor = key.split("/")
+            self._answered(vehicle, sensor, [], False, HANDOFF_TRIES)
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
@@ -121,12 +153,126 @@ class Worker(threading.Thread):
         self.sensors.reclaimed_now = []
         for s in gone:
             self.outbox.forget(s.vehicle, s.sensor)
+            self.custody.settled.discard(f"{s.vehicle}/{s.sensor}")
+        self.custody.housekeeping()
+        if now >= self._next_checkpoint:
+            self._next_checkpoint = now + self.ctx.settings.checkpoint_interval_s
+            self.custody.release_unowned()
+            self.custody.send_checkpoints()
         if now >= self._next_snapshot:
             self._next_snapshot = now + self.ctx.settings.snapshot_interval_s
             self.sensors.snapshot_dirty()
 
     # ------------------------------------------------------------------ one frame
     def _process(self, item: Inbound) -> None:
+        """Track the frames of the sensors this member owns (taking a sensor over first
+        when it does not hold it yet); keep those it stands by for; ignore the others."""
+        names = self.ctx.keys.sensor_of(item.key)
+        if names is not None and NAME_RE.fullmatch(names[0]) and NAME_RE.fullmatch(names[1]):
+            vehicle, sensor = names
+            key = f"{vehicle}/{sensor}"
+            role = self.custody.role(key)
+            if role is not Role.OWNER:
+                if self.sensors.get(key) is not None:
+                    self.custody.release(vehicle, sensor, self.ctx.shared.membership.owner(key))
+                if role is Role.STANDBY:
+                    self.custody.standby.keep(key, item)
+                else:
+                    self.ctx.metrics.not_owned.inc()
+                return
+            if key in self._pending:  # asked for, the answers not in yet: in order after
+                self._wait_for_takeover(key, item)
+                return
+            if key not in self.custody.settled and self.sensors.get(key) is None:
+                if self.custody.needs_asking():
+                    self._pending[key] = deque([item])
+                    self._ask(vehicle, sensor, tries=1)
+                    return
+                self._take_over(vehicle, sensor, [])
+            if key in self._limits and self._after_takeover(key, item):
+                return
+        self._track(item)
+
+    def _ask(self, vehicle: str, sensor: str, tries: int) -> None:
+        """Ask the group for a sensor without waiting: its frames wait in ``_pending`` and
+        the answers come back through the queue's control lane."""
+
+        def done(answers: list[SensorSnapshot], busy: bool) -> None:
+            self.queue.put_control(
+                lambda: self._answered(vehicle, sensor, answers, busy, tries), force=True
+            )
+
+        self.custody.ask(vehicle, sensor, done)
+
+    def _answered(
+        self, vehicle: str, sensor: str, answers: list[SensorSnapshot], busy: bool, tries: int
+    ) -> None:
+        key = f"{vehicle}/{sensor}"
+        if busy and not answers and tries < HANDOFF_TRIES:
+            self._ask(vehicle, sensor, tries + 1)
+            return
+        frames = self._pending.pop(key, deque())
+        self._take_over(vehicle, sensor, answers)
+        for f in frames:
+            if not (key in self._limits and self._after_takeover(key, f)):
+                self._track(f)
+
+    def _wait_for_takeover(self, key: str, item: Inbound) -> None:
+        frames = self._pending[key]
+        frames.append(item)
+        if len(frames) > self.ctx.settings.standby_frames:
+            lost = frames.popleft()
+            self._drop(lost, ErrorReason.DROPPED_QUEUE_FULL)
+
+    def _take_over(self, vehicle: str, sensor: str, answers: list[SensorSnapshot]) -> None:
+        """Restore, then replay: the state the sensor's last holder had (or its standby
+        checkpoint), then the frames kept since, published only past what planners have."""
+        t = self.custody.take_over(vehicle, sensor, answers)
+        key = f"{vehicle}/{sensor}"
+        if t.missed:
+            self._announce_missed(vehicle, sensor, t.missed)
+        self._limits[key] = (t.covered_stamp_ns, t.published_stamp_ns)
+        for f in t.replay:
+            if not (key in self._limits and self._after_takeover(key, f)):
+                self._track(f)
+        if t.replay:
+            self.ctx.metrics.replayed.inc(len(t.replay))
+
+    def _after_takeover(self, key: str, item: Inbound) -> bool:
+        """A frame the state taken over already holds is skipped; one planners already have
+        from the member before is tracked without publishing. True: done with it."""
+        covered, published = self._limits[key]
+        _, stamp = peek_header(item.payload)
+        if stamp is None:
+            return False
+        if covered is not None and stamp <= covered:
+            return True
+        if published is not None and stamp <= published:
+            self._quiet = True
+            try:
+                self._track(item)
+            finally:
+                self._quiet = False
+            return True
+        del self._limits[key]  # past both: from here on like any frame
+        return False
+
+    def _announce_missed(self, vehicle: str, sensor: str, n: int) -> None:
+        self.ctx.metrics.count_missed(vehicle, n)
+        log.warning("frames_missed", vehicle=vehicle, sensor=sensor, missed=n, at="takeover")
+        err = FrameError(
+            schema_version=SCHEMA_VERSION,
+            vehicle=vehicle,
+            sensor=sensor,
+            reason=ErrorReason.MISSED,
+            detail=f"{n} frames of the takeover's gap were not kept (standby_frames) or never "
+            f"reached this member; ids continue past any born in them",
+            instance=self.ctx.settings.instance,
+            received_ns=time.time_ns(),
+        )
+        self.outbox.notice(err)
+
+    def _track(self, item: Inbound) -> None:
         ctx, m = self.ctx, self.ctx.metrics
         t0 = time.perf_counter()
         m.stage.labels(stage="queue").observe(t0 - item.received_at)
@@ -226,7 +372,8 @@ class Worker(threading.Thread):
             published_ns=time.time_ns(),
             tracks=wire,
         )
-        self.outbox.tracks(vehicle, sensor, payload)
+        if not self._quiet:
+            self.outbox.tracks(vehicle, sensor, payload)
         now_ns = time.time_ns()
         t3 = time.perf_counter()
         m.stage.labels(stage="publish").observe(t3 - t2)
@@ -320,6 +467,8 @@ class Worker(threading.Thread):
         r: Rejection,
         counted: bool = False,
     ) -> None:
+        if self._quiet:
+            return  # the member before this one announced it
         if not counted:
             self.ctx.metrics.count_error(r.reason, vehicle)
         try:

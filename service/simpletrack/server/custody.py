@@ -1,0 +1,276 @@
+"""A worker's side of the group protocol (docs/SCALE.md): which frames it tracks, keeps or
+ignores; taking a sensor over (ask the holder, else the standby checkpoint, then replay);
+releasing one to a member that asks; sending checkpoints to each sensor's standby.
+
+Only the worker's thread calls it, except ``release`` after the workers have stopped.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import zenoh
+
+from simpletrack.server.group import Membership, Role
+from simpletrack.server.intake import Inbound
+from simpletrack.server.logs import get_logger
+from simpletrack.server.metrics import Metrics
+from simpletrack.server.outbox import MSGPACK, Outbox
+from simpletrack.server.registry import SensorRegistry
+from simpletrack.server.sensors import SensorState
+from simpletrack.server.snapshots import ID_BLOCK
+from simpletrack.server.standby import Standby
+from simpletrack.wire.codec import DecodeLimits, Rejection, decode_message, encode
+from simpletrack.wire.header import peek_header
+from simpletrack.wire.keys import Keys
+from simpletrack.wire.models import SensorSnapshot
+
+log = get_logger("group")
+# A sensor released to a member this one cannot see yet (its token is on the way) is not
+# taken back for this long: the views agree well within it.
+RELEASE_GUARD_S = 2.0
+RELEASED_KEPT_S = 60.0
+HANDOFF_TRIES = 3  # asks of a sensor whose holder was busy
+_SNAP_LIMITS = DecodeLimits(max_bytes=1 << 30, max_boxes=1 << 30)
+
+
+@dataclass(frozen=True, slots=True)
+class Released:
+    snapshot: SensorSnapshot
+    to: str
+    at: float
+
+
+@dataclass(slots=True)
+class Takeover:
+    """How a sensor came to this member: ``state`` None means a sensor nobody held."""
+
+    state: SensorState | None
+    source: str  # "handoff", "failover", "restore" or "new"
+    replay: list[Inbound] = field(default_factory=list)
+    covered_stamp_ns: int | None = None  # frames up to it are in the state already
+    published_stamp_ns: int | None = None  # planners have tracks up to it
+    missed: int = 0
+
+
+@dataclass
+class Shared:
+    """What the workers' custodies share (thread-safe parts only)."""
+
+    membership: Membership
+    session: zenoh.Session
+    keys: Keys
+    metrics: Metrics
+    instance: str
+    digest: str
+    handoff_timeout_s: float
+    # vehicle/sensor -> stamp_ns of the last tracks frame heard on its key (any member's)
+    published: dict[str, int] = field(default_factory=dict)
+    # vehicle/sensor -> a snapshot from this member's state dir, used when no member has it
+    local: dict[str, SensorSnapshot] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+
+class Custody:
+    def __init__(
+        self, shared: Shared, registry: SensorRegistry, outbox: Outbox, standby_frames: int
+    ) -> None:
+        self.shared, self.registry, self.outbox = shared, registry, outbox
+        self.standby = Standby(standby_frames)
+        self.released: dict[str, Released] = {}
+        self.settled: set[str] = set()  # sensors whose takeover was done (held or new)
+
+    # ------------------------------------------------------------------ routing
+    def role(self, sensor: str) -> Role:
+        role = self.shared.membership.role(sensor)
+        if role is Role.OWNER:
+            rel = self.released.get(sensor)
+            if (
+                rel is not None
+                and rel.to not in self.shared.membership.members
+                and time.monotonic() - rel.at < RELEASE_GUARD_S
+            ):
+                return Role.STANDBY  # keep its frames in case the asker never shows up
+        return role
+
+    def on_checkpoint(self, item: Inbound) -> None:
+        snap = decode_message(item.payload, SensorSnapshot, _SNAP_LIMITS)
+        if isinstance(snap, Rejection):
+            log.warning("checkpoint_invalid", key=item.key, reason=snap.reason.value)
+            return
+        sensor = f"{snap.vehicle}/{snap.sensor}"
+        if self.registry.get(sensor) is None:
+            self.standby.checkpoint(sensor, snap)
+
+    # ------------------------------------------------------------------ taking over
+    def take_over(self, vehicle: str, sensor: str, replies: list[SensorSnapshot]) -> Takeover:
+        """This member owns the sensor and does not hold it: its latest state is the
+        holder's answer (``replies``, from ``ask``), else the standby checkpoint, else this
+        member's state directory; then the frames kept since."""
+        key = f"{vehicle}/{sensor}"
+        self.settled.add(key)
+        self.released.pop(key, None)
+        checkpoint, frames, dropped = self.standby.take(key)
+        snap, source = None, "new"
+        if replies:
+            snap, source = max(replies, key=lambda s: s.written_ns), "handoff"
+        else:
+            local = self.shared.local.pop(key, None)
+            candidates = [(c, "failover") for c in (checkpoint,) if c is not None]
+            candidates += [(c, "restore") for c in (local,) if c is not None]
+            if candidates:
+                snap, source = max(candidates, key=lambda c: c[0].written_ns)
+        with self.shared.lock:
+            published = self.shared.published.get(key)
+        t = Takeover(None, source, published_stamp_ns=published)
+        if snap is not None:
+            t.state = self.registry.adopt(snap, use_floor=source == "restore")
+            t.covered_stamp_ns = snap.last_stamp_ns
+        t.replay = [f for f in frames if _after(f, t.covered_stamp_ns)]
+        t.missed = dropped if source == "failover" else 0
+        if source == "failover" and snap is not None:
+            t.missed += _seq_gap(snap, t.replay)
+        m = self.shared.metrics
+        if source == "handoff":
+            m.handoffs.labels(direction="in").inc()
+        elif source == "failover":
+            m.failovers.inc()
+        if t.missed and t.state is not None:
+            # Tracks may have been born in the frames lost: new ids start past any of them.
+            t.state.tracker.next_id += ID_BLOCK
+        log.info(
+            "sensor_taken_over",
+            vehicle=vehicle,
+            sensor=sensor,
+            source=source,
+            seq=None if snap is None else snap.last_seq,
+            replay=len(t.replay),
+            missed=t.missed,
+            members=len(self.shared.membership.members),
+        )
+        return t
+
+    def needs_asking(self) -> bool:
+        """False when no other member could hold a sensor (alone, nothing released)."""
+        return len(self.shared.membership.members) > 1 or bool(self.released)
+
+    def ask(
+        self,
+        vehicle: str,
+        sensor: str,
+        on_done: Callable[[list[SensorSnapshot], bool], None],
+    ) -> None:
+        """Ask every other member to release the sensor; the holder answers its state.
+        ``on_done(states, busy)`` runs on a Zenoh thread once every member answered (or
+        ``handoff_timeout_s``); ``busy``: a member could not answer now, ask again."""
+        sh = self.shared
+        found: list[SensorSnapshot] = []
+        busy = [False]
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is None:
+                busy[0] = True
+                return
+            snap = decode_message(reply.ok.payload.to_bytes(), SensorSnapshot, _SNAP_LIMITS)
+            if isinstance(snap, Rejection):
+                log.warning("handoff_invalid", vehicle=vehicle, sensor=sensor)
+            elif (snap.vehicle, snap.sensor) == (vehicle, sensor):
+                found.append(snap)
+
+        try:
+            sh.session.get(
+                zenoh.Selector(sh.keys.handoff("*", vehicle, sensor), f"from={sh.instance}"),
+                zenoh.handlers.Callback(on_reply, lambda: on_done(found, busy[0])),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=sh.handoff_timeout_s,
+            )
+        except zenoh.ZError as e:
+            log.warning("handoff_ask_failed", vehicle=vehicle, sensor=sensor, error=str(e))
+            on_done([], False)
+
+    # ------------------------------------------------------------------ giving away
+    def release(self, vehicle: str, sensor: str, to: str) -> SensorSnapshot | None:
+        """Give the sensor up to ``to`` (a member that owns it in its view): its exact
+        state, and this member tracks it no more. Asked again, the same state."""
+        key = f"{vehicle}/{sensor}"
+        state = self.registry.get(key)
+        if state is None:
+            rel = self.released.get(key)
+            return None if rel is None else rel.snapshot
+        snap = state.snapshot(self.registry.digest)
+        self.registry.release(key)
+        self.outbox.forget(vehicle, sensor)
+        self.settled.discard(key)
+        self.released[key] = Released(snap, to, time.monotonic())
+        self.shared.metrics.handoffs.labels(direction="out").inc()
+        log.info("sensor_handed_off", vehicle=vehicle, sensor=sensor, to=to, seq=snap.last_seq)
+        return snap
+
+    def release_unowned(self) -> None:
+        """Sensors held here that another member now owns go when it asks; those it never
+        asks for (silent) are let go here, so a later frame finds them with that member."""
+        for key in list(self.registry.sensors):
+            if self.role(key) is not Role.OWNER:
+                vehicle, sensor = key.split("/")
+                owner = self.shared.membership.owner(key)
+                self.release(vehicle, sensor, owner)
+
+    # ------------------------------------------------------------------ checkpoints
+    def send_checkpoints(self, final: bool = False) -> int:
+        """Each held sensor changed since its last checkpoint (or whose standby changed)
+        goes to its standby; ``final``: every held sensor, at shutdown."""
+        sh = self.shared
+        sent = 0
+        for key, s in list(self.registry.sensors.items()):
+            standby = sh.membership.standby(key)
+            if standby is None:
+                continue
+            mark = (standby, s.frames)
+            if s.checkpoint_mark == mark and not final:
+                continue
+            snap = s.snapshot(self.registry.digest)
+            try:
+                sh.session.put(
+                    sh.keys.checkpoint(standby, s.vehicle, s.sensor),
+                    encode(snap),
+                    encoding=MSGPACK,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                )
+            except zenoh.ZError as e:
+                log.warning("checkpoint_failed", vehicle=s.vehicle, sensor=s.sensor, error=str(e))
+                continue
+            s.checkpoint_mark = mark
+            sent += 1
+        if sent:
+            sh.metrics.checkpoints_sent.inc(sent)
+        return sent
+
+    def housekeeping(self) -> None:
+        now = time.monotonic()
+        for key in [k for k, r in self.released.items() if now - r.at > RELEASED_KEPT_S]:
+            del self.released[key]
+        for key in self.standby.sensors():
+            if self.shared.membership.role(key) is Role.NONE:
+                self.standby.forget(key)
+
+
+def _after(item: Inbound, stamp_ns: int | None) -> bool:
+    if stamp_ns is None:
+        return True
+    _, stamp = peek_header(item.payload)
+    return stamp is None or stamp > stamp_ns
+
+
+def _seq_gap(snap: SensorSnapshot, replay: list[Inbound]) -> int:
+    """Frames between the checkpoint and the first kept frame that never reached here."""
+    if snap.last_seq is None or not replay:
+        return 0
+    first, _ = peek_header(replay[0].payload)
+    return max(0, first - snap.last_seq - 1) if first is not None else 0
+
+
+__all__ = ["Custody", "Released", "Shared", "Takeover"]

@@ -1,0 +1,188 @@
+"""The instances on one prefix as a group: who is alive, and which of them owns each sensor.
+
+Membership is Zenoh's own: every instance holds the liveliness token
+``<prefix>/@simpletrack/<instance>`` and keeps the live set from a liveliness subscriber (a
+killed process's token is gone in milliseconds). Ownership is rendezvous hashing: each sensor
+ranks the members by a hash of (member, sensor); the first owns it, the second stands by
+for it (keeps its checkpoints and its recent frames). A member leaving moves only its own
+sensors, a member joining only those it now ranks first for; no coordination is needed
+beyond the views agreeing, which the token stream makes them do within milliseconds.
+
+A client that loses its router sees every other token go at once: that is its outage, not
+theirs, so departures seen while no router is connected (or within ``ROUTER_SETTLE_S`` of
+its return) wait until the router has been back that long and are dropped if the member
+reappeared (docs/SCALE.md, "What partitions do").
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+import time
+from collections.abc import Callable, Iterable
+from enum import Enum
+
+import zenoh
+
+from simpletrack.server.logs import get_logger
+from simpletrack.wire.keys import SERVICE_CHUNK, Keys
+
+log = get_logger("group")
+ROUTER_SETTLE_S = 2.0
+TICK_S = 0.1
+
+
+class Role(Enum):
+    OWNER = "owner"
+    STANDBY = "standby"
+    NONE = "none"
+
+
+def weight(member: str, sensor: str) -> int:
+    # blake2b, not hash(): every process, on every machine, must rank alike.
+    digest = hashlib.blake2b(f"{member}\x00{sensor}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "big")
+
+
+def ranking(members: Iterable[str], sensor: str) -> list[str]:
+    """The members in the sensor's order of preference (ties, impossible in practice, by
+    name so that every view agrees)."""
+    return sorted(members, key=lambda m: (-weight(m, sensor), m))
+
+
+class Membership:
+    """The live members (this instance included) and each sensor's role here.
+
+    ``role`` is called for every frame on the Zenoh callback: answered from a cache that a
+    membership change replaces whole."""
+
+    def __init__(
+        self,
+        me: str,
+        keys: Keys,
+        enabled: bool = True,
+        routers: Callable[[], int] | None = None,
+        on_change: Callable[[frozenset[str], frozenset[str]], None] | None = None,
+    ) -> None:
+        self.me, self.keys, self.enabled = me, keys, enabled
+        self._routers = routers  # None: peer mode, a token gone is a member gone
+        self._on_change = on_change
+        self._lock = threading.Lock()
+        self._members: frozenset[str] = frozenset({me})
+        self._roles: dict[str, Role] = {}
+        self._leaving: dict[str, float] = {}  # member -> when its token went (client mode)
+        self._router_back_at: float | None = None
+        self._sub: zenoh.Subscriber[None] | None = None
+        self._stop = threading.Event()
+        self._ticker: threading.Thread | None = None
+        self.changes = 0
+        self.changed_at = time.monotonic()
+
+    # ------------------------------------------------------------------ views
+    @property
+    def members(self) -> frozenset[str]:
+        return self._members
+
+    def role(self, sensor: str) -> Role:
+        """This instance's role for ``vehicle/sensor`` in the current view."""
+        if not self.enabled:
+            return Role.OWNER
+        roles = self._roles
+        role = roles.get(sensor)
+        if role is None:
+            order = ranking(self._members, sensor)
+            if order[0] == self.me:
+                role = Role.OWNER
+            elif len(order) > 1 and order[1] == self.me:
+                role = Role.STANDBY
+            else:
+                role = Role.NONE
+            if len(roles) < 1_000_000:  # bounded: a flood of made-up keys cannot grow it
+                roles[sensor] = role
+        return role
+
+    def owner(self, sensor: str) -> str:
+        return ranking(self._members, sensor)[0] if self.enabled else self.me
+
+    def standby(self, sensor: str, members: frozenset[str] | None = None) -> str | None:
+        """The member that would take ``sensor`` over if its owner went (None: alone)."""
+        order = ranking(self._members if members is None else members, sensor)
+        return order[1] if self.enabled and len(order) > 1 else None
+
+    # ------------------------------------------------------------------ the token stream
+    def start(self, session: zenoh.Session) -> None:
+        if not self.enabled:
+            return
+        self._sub = session.liveliness().declare_subscriber(
+            self.keys.liveliness("*"), self._on_token, history=True
+        )
+        if self._routers is not None:
+            self._ticker = threading.Thread(target=self._tick, name="group", daemon=True)
+            self._ticker.start()
+
+    def _member_of(self, key: str) -> str | None:
+        parts = key.split("/")
+        if len(parts) < 2 or parts[-2] != SERVICE_CHUNK:
+            return None
+        return parts[-1]
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        member = self._member_of(str(sample.key_expr))
+        if member is None or member == self.me:
+            return
+        if sample.kind == zenoh.SampleKind.PUT:
+            with self._lock:
+                self._leaving.pop(member, None)
+            self._set(self._members | {member})
+        elif self._routers is None:
+            self._set(self._members - {member})
+        else:
+            with self._lock:
+                self._leaving.setdefault(member, time.monotonic())
+
+    def router_changed(self, connected: bool) -> None:
+        """From the session's router watch: a router back starts the settle time."""
+        with self._lock:
+            self._router_back_at = time.monotonic() if connected else None
+
+    def _tick(self) -> None:
+        while not self._stop.wait(TICK_S):
+            with self._lock:
+                if not self._leaving or self._routers is None or self._routers() == 0:
+                    continue
+                back = self._router_back_at
+                if back is not None and time.monotonic() - back < ROUTER_SETTLE_S:
+                    continue
+                gone = set(self._leaving)
+                self._leaving.clear()
+            self._set(self._members - gone)
+
+    def _set(self, members: frozenset[str]) -> None:
+        with self._lock:
+            before = self._members
+            if members == before:
+                return
+            self._members = members
+            self._roles = {}
+            self.changes += 1
+            self.changed_at = time.monotonic()
+        log.info(
+            "group_changed",
+            members=",".join(sorted(members)),
+            joined=",".join(sorted(members - before)) or None,
+            left=",".join(sorted(before - members)) or None,
+        )
+        if self._on_change is not None:
+            self._on_change(before, members)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._sub is not None:
+            try:
+                self._sub.undeclare()  # type: ignore[no-untyped-call]
+            except (zenoh.ZError, RuntimeError) as e:
+                log.warning("undeclare_failed", error=str(e))
+            self._sub = None
+
+
+__all__ = ["Membership", "Role", "ranking", "weight"]

@@ -1,0 +1,203 @@
+"""What the scale-out tests share: a group of ``simpletrack serve`` processes on one prefix, a
+fleet replaying real KITTI detections at 10 Hz in real time, a planner recording every
+tracks message, and the tracks a single uninterrupted tracker gives on the same frames."""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from simpletrack.client import DetectionPublisher
+from simpletrack.core.tracker import Tracker
+from simpletrack.datasets.kitti import load_sequence
+from simpletrack.server.settings import ServiceSettings
+from simpletrack.session import open_session
+from simpletrack.spawn import free_port
+from simpletrack.wire import BoxArrays, Rejection, TrackArrays, TrackFrame, decode_track_frame
+from simpletrack.wire.codec import decode_detection_frame, encode_detection_frame
+from simpletrack.wire.convert import boxes_to_wire, frame_from_wire, tracks_to_wire
+from tests.service_helpers import DATA, ServiceProcess, start_service
+
+KITTI = DATA / "kitti"
+PERIOD_S = 0.1
+CLASSES = ("Car", "Pedestrian", "Cyclist")
+T0_NS = 1_700_000_000_000_000_000
+
+needs_kitti = pytest.mark.skipif(
+    not (KITTI / "detections").is_dir(), reason=f"KITTI data not found under {KITTI}"
+)
+
+
+def sequences() -> list[str]:
+    return sorted(p.stem for p in (KITTI / "labels").glob("*.txt"))
+
+
+def fleet_frames(n_sensors: int, n_frames: int) -> dict[str, list[BoxArrays]]:
+    """Per sensor ``car-<i>/lidar``: the first ``n_frames`` of KITTI sequence i % 10."""
+    config = ServiceSettings(group=False).tracker_config()
+    seqs = sequences()
+    cache: dict[str, list[BoxArrays]] = {}
+    out: dict[str, list[BoxArrays]] = {}
+    for i in range(n_sensors):
+        seq = seqs[i % len(seqs)]
+        if seq not in cache:
+            frames = load_sequence(KITTI, seq, config, CLASSES)[:n_frames]
+            cache[seq] = [boxes_to_wire(f.boxes, config.class_names) for f in frames]
+        out[f"car-{i}/lidar"] = cache[seq]
+    return out
+
+
+def stamp_of(k: int) -> int:
+    return T0_NS + k * 100_000_000
+
+
+def expected_tracks(name: str, frames: list[BoxArrays]) -> list[TrackArrays]:
+    """What one uninterrupted instance answers to these frames (the worker's own path)."""
+    config = ServiceSettings(group=False).tracker_config()
+    codes = {n: code for code, n in enumerate(config.class_names)}
+    tracker = Tracker(config)
+    vehicle, sensor = name.split("/")
+    out = []
+    for k, boxes in enumerate(frames):
+        payload = encode_detection_frame(
+            vehicle=vehicle, sensor=sensor, seq=k, stamp_ns=stamp_of(k), frame_id=sensor, boxes=boxes
+        )
+        decoded = decode_detection_frame(payload, class_codes=codes)
+        assert not isinstance(decoded, Rejection), decoded
+        frame, _ = frame_from_wire(decoded, (stamp_of(k) - T0_NS) * 1e-9)
+        out.append(tracks_to_wire(tracker.step(frame), 0, config.class_names))
+    return out
+
+
+@dataclass
+class Planner:
+    """Every tracks message of the fleet, as it arrived."""
+
+    frames: dict[str, list[tuple[TrackFrame, TrackArrays]]] = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_tracks(self, sample: zenoh.Sample) -> None:
+        out = decode_track_frame(sample.payload.to_bytes())
+        assert not isinstance(out, Rejection), out
+        with self.lock:
+            self.frames.setdefault(f"{out[0].vehicle}/{out[0].sensor}", []).append(out)
+
+    def count(self) -> int:
+        with self.lock:
+            return sum(len(v) for v in self.frames.values())
+
+    def instances(self, since_ns: int = 0) -> Counter[str]:
+        with self.lock:
+            return Counter(
+                f.instance for v in self.frames.values() for f, _ in v if f.published_ns > since_ns
+            )
+
+
+class Fleet(threading.Thread):
+    """Sensors replaying their frames at 10 Hz, stamps ``T0 + k * 100 ms`` (the stamps a
+    vehicle's clock gives, whatever the machine's load): one session, one advanced publisher
+    (with its cache) per sensor."""
+
+    def __init__(self, session: zenoh.Session, frames: dict[str, list[BoxArrays]]) -> None:
+        super().__init__(daemon=True)
+        self.frames = frames
+        self.pubs = {
+            name: DetectionPublisher(session, *name.split("/"), classes=CLASSES)
+            for name in frames
+        }
+        self.sent: dict[str, int] = dict.fromkeys(frames, 0)
+        self.n = min(len(v) for v in frames.values())
+        self.k = -1  # the last frame index sent
+        self.done = threading.Event()
+        self._halt = threading.Event()
+
+    def wait_for_service(self, timeout: float) -> bool:
+        return all(p.wait_for_service(timeout) for p in self.pubs.values())
+
+    def run(self) -> None:
+        t0 = time.monotonic()
+        for k in range(self.n):
+            delay = t0 + k * PERIOD_S - time.monotonic()
+            if self._halt.wait(max(0.0, delay)):
+                break
+            for name, pub in self.pubs.items():
+                pub.publish_arrays(self.frames[name][k], stamp_ns=stamp_of(k))
+                self.sent[name] += 1
+            self.k = k
+        self.done.set()
+
+    def close(self) -> None:
+        self._halt.set()
+        self.join(10)
+        for p in self.pubs.values():
+            with contextlib.suppress(Exception):
+                p.close()
+
+
+@dataclass
+class Group:
+    """Members in peer mode, each listening on its own port and connected to the others."""
+
+    tmp: Path
+    args: tuple[str, ...] = ()
+    members: dict[str, ServiceProcess] = field(default_factory=dict)
+    ports: dict[str, int] = field(default_factory=dict)
+
+    def endpoints(self) -> list[str]:
+        return [f"tcp/127.0.0.1:{p}" for p in self.ports.values()]
+
+    def add(self, name: str, env: dict[str, str] | None = None) -> ServiceProcess:
+        port = free_port()
+        connect = [a for e in self.endpoints() for a in ("--connect", e)]
+        svc = start_service(self.tmp, *connect, *self.args, env=env, port=port, instance=name)
+        self.members[name], self.ports[name] = svc, port
+        return svc
+
+    def remove(self, name: str) -> ServiceProcess:
+        self.ports.pop(name)
+        return self.members.pop(name)
+
+    def stop_all(self) -> None:
+        for svc in self.members.values():
+            with contextlib.suppress(Exception):
+                svc.stop()
+
+
+def planner_session(endpoints: list[str]) -> zenoh.Session:
+    return open_session(mode="peer", connect=endpoints)
+
+
+def mismatches(
+    planner: Planner, frames: dict[str, list[BoxArrays]], n_frames: int
+) -> tuple[list[str], list[str]]:
+    """(frames without exactly one tracks message, tracks unequal to the reference)."""
+    counts, unequal = [], []
+    with planner.lock:
+        got = {k: list(v) for k, v in planner.frames.items()}
+    for name, payloads in frames.items():
+        expected = expected_tracks(name, payloads[:n_frames])
+        by_seq: dict[int, list[TrackArrays]] = {}
+        for f, t in got.get(name, []):
+            by_seq.setdefault(f.seq, []).append(t)
+        for seq in range(n_frames):
+            answers = by_seq.get(seq, [])
+            if len(answers) != 1:
+                counts.append(f"{name} seq {seq}: {len(answers)} tracks messages")
+                continue
+            a, e = answers[0], expected[seq]
+            same = (
+                np.array_equal(np.sort(a.id), np.sort(e.id))
+                and a.id.shape == e.id.shape
+                and np.allclose(a.center[np.argsort(a.id)], e.center[np.argsort(e.id)], atol=1e-4)
+            )
+            if not same:
+                unequal.append(f"{name} seq {seq}: ids {sorted(a.id)} vs {sorted(e.id)}")
+    return counts, unequal
