@@ -1,18 +1,21 @@
 """What the deployment tests share: the files under deploy/, the metric names the service
-really exports, and a small PromQL reader (names and grouping labels of an expression)."""
+really exports (and the group protocol's, announced before it exports them), the grace a
+stopping instance needs, and a small PromQL reader (names and grouping labels of an
+expression)."""
 
 from __future__ import annotations
 
 import json
 import re
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from simpletrack.server.metrics import Metrics
+from simpletrack.server.settings import ServiceSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
@@ -25,6 +28,24 @@ K8S = DEPLOY / "k8s"
 
 # Labels Prometheus adds to every target's series.
 TARGET_LABELS = frozenset({"job", "instance"})
+
+# The scale-out group's metrics and labels (docs/DEPLOY.md, "Scale-out"): the dashboard and the
+# alerts use them before the service exports them; test_compose.py checks this list against
+# the service's registry as soon as it exports any of them.
+GROUP_METRICS = frozenset(
+    {
+        "simpletrack_group_members",
+        "simpletrack_standby_sensors",
+        "simpletrack_handoffs_total",
+        "simpletrack_failovers_total",
+        "simpletrack_replayed_frames_total",
+        "simpletrack_frames_not_owned_total",
+        "simpletrack_checkpoints_sent_total",
+    }
+)
+GROUP_LABELS = frozenset({"direction"})
+# handoff_timeout_s of the group protocol, until the settings have it
+HANDOFF_TIMEOUT_DEFAULT_S = 1.0
 _KEYWORDS = frozenset(
     {"and", "or", "unless", "bool", "offset", "by", "without", "on", "ignoring", "Inf", "NaN"}
     | {"group_left", "group_right"}
@@ -45,6 +66,16 @@ def exported() -> tuple[set[str], set[str]]:
                 names.add(sample.name)
                 labels.update(sample.labels)
     return names, labels
+
+
+def handoff_timeout_s(settings: ServiceSettings, sources: Mapping[str, Any]) -> float:
+    """How long a stopping instance answers hand-off queries: the settings' value once the
+    service has the setting; until then what the deployment sets (``SIMPLETRACK_*`` env or
+    settings-file key in ``sources``), else the protocol's default."""
+    if "handoff_timeout_s" in ServiceSettings.model_fields:
+        return float(settings.model_dump()["handoff_timeout_s"])
+    value = sources.get("SIMPLETRACK_HANDOFF_TIMEOUT_S", sources.get("handoff_timeout_s"))
+    return HANDOFF_TIMEOUT_DEFAULT_S if value is None else float(value)
 
 
 def promql_names(expr: str) -> tuple[set[str], set[str]]:

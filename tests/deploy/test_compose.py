@@ -1,6 +1,7 @@
 """deploy/compose.yaml, the Grafana provisioning and dashboard, and the alert expressions:
-every file they name exists, the pieces point at each other, the service's environment is
-valid settings, and every PromQL query names a metric the service really exports."""
+every file they name exists, the pieces point at each other, each service instance's
+environment is valid settings of one group (same prefix, own instance id, state and port),
+and every PromQL query names a metric the service really exports (or the group protocol's)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from tests.deploy.helpers import (
     COMPOSE,
     DASHBOARD,
     DEPLOY,
+    GROUP_LABELS,
+    GROUP_METRICS,
     PROMETHEUS_CONFIG,
     TARGET_LABELS,
     alert_rules,
@@ -26,6 +29,7 @@ from tests.deploy.helpers import (
     dashboard_queries,
     dependency_spec,
     exported,
+    handoff_timeout_s,
     load_yaml,
     matcher_labels,
     promql_names,
@@ -33,6 +37,9 @@ from tests.deploy.helpers import (
 
 COMPOSE_DOC: dict[str, Any] = load_yaml(COMPOSE)
 SERVICES: dict[str, Any] = COMPOSE_DOC["services"]
+# the service instances: every service running the image built from the Dockerfile
+TRACKERS = sorted(n for n, s in SERVICES.items() if "build" in s)
+OTHERS = {"zenoh-router", "prometheus", "grafana"}
 
 
 def mounts(service: str) -> dict[str, Path]:
@@ -53,12 +60,11 @@ def host_file(service: str, container_path: str) -> Path:
     raise AssertionError(f"{service}: nothing is mounted at {container_path}")
 
 
-def tracker_settings(monkeypatch: pytest.MonkeyPatch) -> ServiceSettings:
+def tracker_settings(monkeypatch: pytest.MonkeyPatch, name: str = "") -> ServiceSettings:
     for key in list(os.environ):
         if key.startswith("SIMPLETRACK_"):
             monkeypatch.delenv(key)
-    env = SERVICES["simpletrack"]["environment"]
-    for key, value in env.items():
+    for key, value in SERVICES[name or TRACKERS[0]]["environment"].items():
         monkeypatch.setenv(key, interpolate(str(value)))
     # The image's own environment (Dockerfile ENV) is under the compose environment.
     monkeypatch.setenv("SIMPLETRACK_METRICS_HOST", "0.0.0.0")
@@ -77,15 +83,19 @@ def duration_s(text: str) -> float:
 
 
 # ----------------------------------------------------------------------------- compose
-def test_compose_has_the_four_services() -> None:
-    assert set(SERVICES) == {"zenoh-router", "simpletrack", "prometheus", "grafana"}
+def test_compose_runs_a_group_of_service_instances_and_the_rest_once() -> None:
+    assert set(SERVICES) == OTHERS | set(TRACKERS)
+    assert len(TRACKERS) >= 2, TRACKERS
+    images = {SERVICES[n]["image"] for n in TRACKERS}
+    assert len(images) == 1, images  # one release in the group
 
 
 def test_every_file_compose_names_exists() -> None:
-    build = SERVICES["simpletrack"]["build"]
-    context = (COMPOSE.parent / build["context"]).resolve()
-    assert (context / build["dockerfile"]).is_file()
-    assert (context / "pyproject.toml").is_file()
+    for name in TRACKERS:
+        build = SERVICES[name]["build"]
+        context = (COMPOSE.parent / build["context"]).resolve()
+        assert (context / build["dockerfile"]).is_file()
+        assert (context / "pyproject.toml").is_file()
     for service in SERVICES:
         for target, source in mounts(service).items():
             assert source.exists(), f"{service}: {source} (mounted at {target}) does not exist"
@@ -108,8 +118,11 @@ def test_images_are_pinned_and_the_router_matches_the_zenoh_library() -> None:
     assert router_version in SpecifierSet(dependency_spec("eclipse-zenoh"))
 
 
-def test_the_tracker_is_a_client_of_the_router(monkeypatch: pytest.MonkeyPatch) -> None:
-    settings = tracker_settings(monkeypatch)
+@pytest.mark.parametrize("name", TRACKERS)
+def test_each_instance_is_a_client_of_the_router(
+    monkeypatch: pytest.MonkeyPatch, name: str
+) -> None:
+    settings = tracker_settings(monkeypatch, name)
     assert settings.preset == DEMO_PRESET  # `simpletrack demo --service external` works
     assert settings.zenoh.mode == "client"
     [endpoint] = settings.zenoh.connect
@@ -117,8 +130,42 @@ def test_the_tracker_is_a_client_of_the_router(monkeypatch: pytest.MonkeyPatch) 
     assert host == "zenoh-router" and host in SERVICES
     router_conf = host_file("zenoh-router", SERVICES["zenoh-router"]["command"][1])
     assert f"tcp/{_router_ip()}:{port}" in router_conf.read_text()
-    assert "depends_on" in SERVICES["simpletrack"]
-    assert SERVICES["simpletrack"].get("restart") == "unless-stopped"  # router not up yet
+    assert "zenoh-router" in SERVICES[name]["depends_on"]
+    assert SERVICES[name].get("restart") == "unless-stopped"  # router not up yet
+
+
+def test_the_instances_form_one_group(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Same prefix and settings but for their identity: own instance id, state volume and
+    published metrics port."""
+    settings = {name: tracker_settings(monkeypatch, name) for name in TRACKERS}
+    identity = {"instance"}
+    shared = {n: s.model_dump(exclude=identity) for n, s in settings.items()}
+    first = shared[TRACKERS[0]]
+    for name, values in shared.items():
+        assert values == first, f"{name} differs from {TRACKERS[0]}"
+    assert len({s.prefix for s in settings.values()}) == 1
+    instances = [s.instance for s in settings.values()]
+    assert len(set(instances)) == len(TRACKERS), instances
+    assert len({_state_volume(n, settings[n]) for n in TRACKERS}) == len(TRACKERS)
+    host_ports = [_published(n, settings[n].metrics_port) for n in TRACKERS]
+    assert len(set(host_ports)) == len(TRACKERS), host_ports
+
+
+def _state_volume(name: str, settings: ServiceSettings) -> str:
+    named: dict[str, str] = {
+        v.split(":")[1]: v.split(":")[0] for v in SERVICES[name]["volumes"] if not v.startswith(".")
+    }
+    return named[str(settings.state_dir)]
+
+
+def _published(name: str, container_port: int) -> str:
+    """The host address:port compose publishes a container port on."""
+    [published] = [
+        p.rpartition(":")[0]
+        for p in map(str, SERVICES[name]["ports"])
+        if p.rpartition(":")[2] == str(container_port)
+    ]
+    return published
 
 
 def _router_ip() -> str:
@@ -132,36 +179,37 @@ def test_the_router_address_is_on_the_compose_network() -> None:
     assert ipaddress.ip_address(_router_ip()) in ipaddress.ip_network(subnet)
 
 
-def test_the_stop_grace_period_outlasts_the_shutdown_snapshot(
-    monkeypatch: pytest.MonkeyPatch,
+@pytest.mark.parametrize("name", TRACKERS)
+def test_the_stop_grace_period_outlasts_the_drain_and_the_hand_off(
+    monkeypatch: pytest.MonkeyPatch, name: str
 ) -> None:
-    settings = tracker_settings(monkeypatch)
-    service = SERVICES["simpletrack"]
+    settings = tracker_settings(monkeypatch, name)
+    service = SERVICES[name]
     assert service["stop_signal"] == "SIGTERM"
-    assert duration_s(service["stop_grace_period"]) >= settings.shutdown_timeout_s + 10
+    environment = {k: interpolate(str(v)) for k, v in service["environment"].items()}
+    drain = settings.shutdown_timeout_s + handoff_timeout_s(settings, environment)
+    assert duration_s(service["stop_grace_period"]) >= drain + 10
 
 
-def test_state_is_a_named_volume_at_the_state_dir(monkeypatch: pytest.MonkeyPatch) -> None:
-    settings = tracker_settings(monkeypatch)
-    named = {
-        v.split(":")[1]: v.split(":")[0]
-        for v in SERVICES["simpletrack"]["volumes"]
-        if not v.startswith(".")
-    }
-    assert named.get(str(settings.state_dir)) in COMPOSE_DOC["volumes"]
+@pytest.mark.parametrize("name", TRACKERS)
+def test_state_is_a_named_volume_at_the_state_dir(
+    monkeypatch: pytest.MonkeyPatch, name: str
+) -> None:
+    settings = tracker_settings(monkeypatch, name)
+    assert _state_volume(name, settings) in COMPOSE_DOC["volumes"]
 
 
-def test_prometheus_scrapes_the_tracker_on_its_metrics_port(
+def test_prometheus_scrapes_every_instance_on_its_metrics_port(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    settings = tracker_settings(monkeypatch)
+    ports = {name: tracker_settings(monkeypatch, name).metrics_port for name in TRACKERS}
     args = SERVICES["prometheus"]["command"]
     config_path = next(a.split("=", 1)[1] for a in args if a.startswith("--config.file="))
     config_file = host_file("prometheus", config_path)
     assert config_file == PROMETHEUS_CONFIG
     jobs = {j["job_name"]: j for j in load_yaml(config_file)["scrape_configs"]}
     targets = [t for sc in jobs["simpletrack"]["static_configs"] for t in sc["targets"]]
-    assert targets == [f"simpletrack:{settings.metrics_port}"]
+    assert sorted(targets) == [f"{name}:{port}" for name, port in ports.items()]
     for rule_file in load_yaml(config_file)["rule_files"]:
         assert (config_file.parent / rule_file).is_file()
     router_targets = [t for sc in jobs["zenoh-router"]["static_configs"] for t in sc["targets"]]
@@ -191,8 +239,15 @@ def test_grafana_is_provisioned_with_the_datasource_and_the_dashboard() -> None:
 
 # ----------------------------------------------------------------------------- PromQL names
 EXPORTED_NAMES, EXPORTED_LABELS = exported()
-KNOWN_NAMES = EXPORTED_NAMES | {"up"}  # `up` is Prometheus's own, per target
-KNOWN_LABELS = EXPORTED_LABELS | TARGET_LABELS
+KNOWN_NAMES = EXPORTED_NAMES | GROUP_METRICS | {"up"}  # `up` is Prometheus's own, per target
+KNOWN_LABELS = EXPORTED_LABELS | GROUP_LABELS | TARGET_LABELS
+
+
+def test_the_group_metrics_are_what_the_service_exports_once_it_does() -> None:
+    if not GROUP_METRICS & EXPORTED_NAMES:
+        pytest.skip("the service does not export the group metrics yet")
+    assert GROUP_METRICS <= EXPORTED_NAMES, sorted(GROUP_METRICS - EXPORTED_NAMES)
+    assert GROUP_LABELS <= EXPORTED_LABELS, sorted(GROUP_LABELS - EXPORTED_LABELS)
 
 
 def test_the_promql_reader_finds_names_and_labels() -> None:
@@ -243,6 +298,32 @@ def test_the_dashboard_shows_what_an_operator_needs() -> None:
         assert word in titles, word
 
 
+def test_the_dashboard_shows_the_group() -> None:
+    queries = list(dashboard_queries())
+    text = "\n".join(expr for _, expr in queries)
+    for metric in GROUP_METRICS:
+        assert metric in text, metric
+    per_instance = {expr for _, expr in queries if "sum by (instance)" in expr}
+    assert any("simpletrack_active_sensors" in e for e in per_instance)  # owned per instance
+    assert any('reason="missed"' in e for e in per_instance)
+    assert "sum by (direction)" in text  # hand-offs in and out
+    rows = [p for p in dashboard()["panels"] if p["type"] == "row"]
+    assert [r["title"] for r in rows] == ["Scale-out group"]
+    panels = dashboard()["panels"]
+    for i, a in enumerate(panels):
+        for b in panels[i + 1 :]:
+            assert not _overlap(a["gridPos"], b["gridPos"]), f"{a['title']!r} over {b['title']!r}"
+
+
+def _overlap(a: dict[str, int], b: dict[str, int]) -> bool:
+    return (
+        a["x"] < b["x"] + b["w"]
+        and b["x"] < a["x"] + a["w"]
+        and a["y"] < b["y"] + b["h"]
+        and b["y"] < a["y"] + a["h"]
+    )
+
+
 def test_every_alert_names_an_exported_metric() -> None:
     rules = alert_rules()
     assert {r["alert"] for r in rules} >= {
@@ -251,6 +332,9 @@ def test_every_alert_names_an_exported_metric() -> None:
         "SimpletrackLatencyHigh",
         "SimpletrackRejectsRising",
         "SimpletrackSnapshotTooOld",
+        "SimpletrackGroupIncomplete",
+        "SimpletrackGroupSplit",
+        "SimpletrackFailovers",
     }
     for rule in rules:
         names, labels = promql_names(rule["expr"])

@@ -1,10 +1,13 @@
 """deploy/k8s/: the manifests parse, name files that exist, point at each other, probe paths
-the service really serves, and give it valid settings and enough time to snapshot on SIGTERM."""
+the service really serves, run one group of replicas on one prefix (PDB, rolling update,
+spread over nodes, every replica scraped), and give it valid settings and enough time to drain,
+hand its sensors over and snapshot on SIGTERM."""
 
 from __future__ import annotations
 
 import os
 import re
+import tomllib
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -19,6 +22,8 @@ from tests.deploy.helpers import (
     ALERTS,
     COMPOSE,
     K8S,
+    alert_rules,
+    handoff_timeout_s,
     load_yaml,
     load_yaml_all,
     project_version,
@@ -158,10 +163,77 @@ def _status(port: int, path: str) -> int:
         return int(e.code)
 
 
-def test_the_grace_period_outlasts_the_shutdown_snapshot(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_grace_period_outlasts_the_drain_and_the_hand_off(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     settings = tracker_settings(monkeypatch)
+    args = build_parser().parse_args(container(TRACKER)["args"])
+    config = tomllib.loads(mounted_file(TRACKER, str(args.config)).read_text())
+    env = {e["name"]: e["value"] for e in container(TRACKER).get("env", []) if "value" in e}
+    drain = settings.shutdown_timeout_s + handoff_timeout_s(settings, {**config, **env})
     grace = TRACKER["spec"]["template"]["spec"]["terminationGracePeriodSeconds"]
-    assert grace >= settings.shutdown_timeout_s + 10
+    assert grace >= drain + 10
+
+
+def test_one_statefulset_runs_the_group_on_one_prefix(monkeypatch: pytest.MonkeyPatch) -> None:
+    workloads = [d for d in DOCS if d["kind"] in {"StatefulSet", "Deployment"}]
+    trackers = [w for w in workloads if container(w)["image"] == "simpletrack-service"]
+    assert trackers == [TRACKER]  # no StatefulSet per prefix
+    spec = TRACKER["spec"]
+    assert spec["replicas"] >= 2
+    assert spec["updateStrategy"]["type"] == "RollingUpdate"
+    assert spec.get("podManagementPolicy", "OrderedReady") == "Parallel"
+    env = {e["name"]: e for e in container(TRACKER)["env"]}
+    # the pod name is the member name
+    assert env["SIMPLETRACK_INSTANCE"]["valueFrom"]["fieldRef"]["fieldPath"] == "metadata.name"
+    assert "SIMPLETRACK_PREFIX" not in env
+    assert tracker_settings(monkeypatch).prefix  # one prefix, from simpletrack.toml
+
+
+def _selects(selector: dict[str, Any], labels: dict[str, str]) -> bool:
+    assert set(selector) == {"matchLabels"}, selector  # no matchExpressions to evaluate here
+    return bool(selector["matchLabels"].items() <= labels.items())
+
+
+def test_the_disruption_budget_takes_one_tracker_pod_at_a_time() -> None:
+    pdb = one("PodDisruptionBudget", "simpletrack")
+    assert pdb["spec"]["maxUnavailable"] == 1 and "minAvailable" not in pdb["spec"]
+    selector = pdb["spec"]["selector"]
+    assert selector == TRACKER["spec"]["selector"]  # the same pods as the StatefulSet
+    assert _selects(selector, TRACKER["spec"]["template"]["metadata"]["labels"])
+    assert not _selects(selector, ROUTER["spec"]["template"]["metadata"]["labels"])
+    # while one pod is disrupted, the others can still hold an owner and a standby
+    assert TRACKER["spec"]["replicas"] - pdb["spec"]["maxUnavailable"] >= 2
+
+
+def test_replicas_prefer_different_nodes() -> None:
+    anti = TRACKER["spec"]["template"]["spec"]["affinity"]["podAntiAffinity"]
+    assert "requiredDuringSchedulingIgnoredDuringExecution" not in anti  # fewer nodes: still runs
+    [term] = anti["preferredDuringSchedulingIgnoredDuringExecution"]
+    affinity = term["podAffinityTerm"]
+    assert affinity["topologyKey"] == "kubernetes.io/hostname"
+    assert _selects(affinity["labelSelector"], TRACKER["spec"]["template"]["metadata"]["labels"])
+
+
+def test_the_member_alert_expects_the_replicas_and_the_compose_instances() -> None:
+    [rule] = [r for r in alert_rules() if r["alert"] == "SimpletrackGroupIncomplete"]
+    expected = re.fullmatch(r"max\(simpletrack_group_members\{[^}]*\}\) < (\d+)", rule["expr"])
+    assert expected is not None, rule["expr"]
+    assert int(expected.group(1)) == TRACKER["spec"]["replicas"]
+    assert f"of {expected.group(1)} members" in rule["annotations"]["summary"]
+    compose_trackers = [s for s in load_yaml(COMPOSE)["services"].values() if "build" in s]
+    assert len(compose_trackers) == TRACKER["spec"]["replicas"]
+
+
+def test_every_file_of_the_directory_is_applied() -> None:
+    listed = set(KUSTOMIZATION["resources"])
+    generated_files = {
+        p.name for g in KUSTOMIZATION["configMapGenerator"] for p in generated(g["name"]).values()
+    }
+    for path in K8S.iterdir():
+        if path.name == "kustomization.yaml":
+            continue
+        assert path.name in listed | generated_files, f"{path.name} is not in kustomization.yaml"
 
 
 def test_state_lives_on_a_persistent_volume(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -187,10 +259,11 @@ def test_the_pods_are_bounded_and_unprivileged() -> None:
     assert container(TRACKER)["resources"]["limits"]["cpu"]
 
 
-def test_the_service_monitor_scrapes_the_tracker_as_job_simpletrack() -> None:
+def test_the_service_monitor_scrapes_every_replica_as_job_simpletrack() -> None:
     service = one("Service", "simpletrack")
     pod_labels = TRACKER["spec"]["template"]["metadata"]["labels"]
     assert service["spec"]["selector"].items() <= pod_labels.items()
+    assert service["spec"]["clusterIP"] == "None"  # headless: one endpoint per pod, no proxy
     assert TRACKER["spec"]["serviceName"] == "simpletrack"
     monitor = one("ServiceMonitor", "simpletrack")
     assert (
@@ -199,6 +272,9 @@ def test_the_service_monitor_scrapes_the_tracker_as_job_simpletrack() -> None:
     port_names = {p["name"] for p in service["spec"]["ports"]}
     [endpoint] = monitor["spec"]["endpoints"]
     assert endpoint["port"] in port_names and endpoint["path"] == "/metrics"
+    # `instance` is the pod name, which is the member name of the group
+    relabel = {r["targetLabel"]: r["sourceLabels"] for r in endpoint.get("relabelings", [])}
+    assert relabel["instance"] == ["__meta_kubernetes_pod_name"]
     # the job label is the Service's name; alerts and the dashboard select job="simpletrack"
     assert 'job="simpletrack"' in ALERTS.read_text()
 

@@ -425,9 +425,9 @@ def _replies(session: zenoh.Session) -> int:
 @pytest.mark.zenoh
 def test_the_compose_stack_tracks_the_demo_fleet_through_the_router(tmp_path: Path) -> None:
     """deploy/zenoh/router.json5 in a router, `simpletrack serve` with the environment of
-    compose.yaml as its client (addresses moved to 127.0.0.1), and the simulated fleet of
-    docs/DEPLOY.md (`simpletrack demo --service external`) through the router: every frame
-    comes back tracked, and SIGTERM leaves a snapshot of every sensor."""
+    compose.yaml's first instance as its client (addresses moved to 127.0.0.1), and the
+    simulated fleet of docs/DEPLOY.md (`simpletrack demo --service external`) through the
+    router: every frame comes back tracked, and SIGTERM leaves a snapshot of every sensor."""
     compose = yaml.safe_load((ROOT / "deploy" / "compose.yaml").read_text())
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = load(ZENOH_DIR / "router.json5")
@@ -437,7 +437,7 @@ def test_the_compose_stack_tracks_the_demo_fleet_through_the_router(tmp_path: Pa
     try:
         env = {
             k: re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", str(v))  # compose's ${VAR:-default}
-            for k, v in compose["services"]["simpletrack"]["environment"].items()
+            for k, v in compose["services"]["simpletrack-a"]["environment"].items()
         }
         assert json.loads(env["SIMPLETRACK_ZENOH__CONNECT"]) == ["tcp/zenoh-router:7447"]
         metrics_port = free_port()
