@@ -24,7 +24,8 @@ from simpletrack.spawn import free_port
 from simpletrack.wire import BoxArrays, Rejection, TrackArrays, TrackFrame, decode_track_frame
 from simpletrack.wire.codec import decode_detection_frame, encode_detection_frame
 from simpletrack.wire.convert import boxes_to_wire, frame_from_wire, tracks_to_wire
-from tests.service_helpers import DATA, ServiceProcess, start_service
+from tests.faults.router_process import start_client_service
+from tests.service_helpers import DATA, ServiceProcess, start_service, wait_for
 
 KITTI = DATA / "kitti"
 PERIOD_S = 0.1
@@ -68,7 +69,12 @@ def expected_tracks(name: str, frames: list[BoxArrays]) -> list[TrackArrays]:
     out = []
     for k, boxes in enumerate(frames):
         payload = encode_detection_frame(
-            vehicle=vehicle, sensor=sensor, seq=k, stamp_ns=stamp_of(k), frame_id=sensor, boxes=boxes
+            vehicle=vehicle,
+            sensor=sensor,
+            seq=k,
+            stamp_ns=stamp_of(k),
+            frame_id=sensor,
+            boxes=boxes,
         )
         decoded = decode_detection_frame(payload, class_codes=codes)
         assert not isinstance(decoded, Rejection), decoded
@@ -110,8 +116,7 @@ class Fleet(threading.Thread):
         super().__init__(daemon=True)
         self.frames = frames
         self.pubs = {
-            name: DetectionPublisher(session, *name.split("/"), classes=CLASSES)
-            for name in frames
+            name: DetectionPublisher(session, *name.split("/"), classes=CLASSES) for name in frames
         }
         self.sent: dict[str, int] = dict.fromkeys(frames, 0)
         self.n = min(len(v) for v in frames.values())
@@ -144,17 +149,30 @@ class Fleet(threading.Thread):
 
 @dataclass
 class Group:
-    """Members in peer mode, each listening on its own port and connected to the others."""
+    """Members in peer mode, each listening on its own port and connected to the others;
+    or, with ``router``, clients of that router process."""
 
     tmp: Path
     args: tuple[str, ...] = ()
+    router: str | None = None
+    # Room for 3 s of frames: on 2 shared cores a member starting (imports) stalls the
+    # others that long, and a full queue drops (announced, but not what these tests test).
+    env: dict[str, str] = field(default_factory=lambda: {"SIMPLETRACK_QUEUE_SIZE": "1000"})
     members: dict[str, ServiceProcess] = field(default_factory=dict)
     ports: dict[str, int] = field(default_factory=dict)
 
     def endpoints(self) -> list[str]:
+        if self.router is not None:
+            return [self.router]
         return [f"tcp/127.0.0.1:{p}" for p in self.ports.values()]
 
     def add(self, name: str, env: dict[str, str] | None = None) -> ServiceProcess:
+        env = {**self.env, **(env or {})}
+        if self.router is not None:
+            svc = start_client_service(self.tmp, self.router, *self.args, env=env, instance=name)
+            wait_for(lambda: svc.http("/readyz")[0] == 200, 30, f"{name} ready")
+            self.members[name] = svc
+            return svc
         port = free_port()
         connect = [a for e in self.endpoints() for a in ("--connect", e)]
         svc = start_service(self.tmp, *connect, *self.args, env=env, port=port, instance=name)
@@ -162,7 +180,7 @@ class Group:
         return svc
 
     def remove(self, name: str) -> ServiceProcess:
-        self.ports.pop(name)
+        self.ports.pop(name, None)
         return self.members.pop(name)
 
     def stop_all(self) -> None:
@@ -171,8 +189,9 @@ class Group:
                 svc.stop()
 
 
-def planner_session(endpoints: list[str]) -> zenoh.Session:
-    return open_session(mode="peer", connect=endpoints)
+def planner_session(group: Group) -> zenoh.Session:
+    mode = "client" if group.router is not None else "peer"
+    return open_session(mode=mode, connect=group.endpoints())
 
 
 def mismatches(

@@ -1,7 +1,8 @@
 """Three members share 30 sensors replaying KITTI at 10 Hz. One is killed with SIGKILL
 mid-stream, then a new one joins, then one is stopped with SIGTERM: every detection frame
 gets exactly one tracks message, and the tracks (ids and boxes) are those one uninterrupted
-tracker gives on the same frames, frame for frame."""
+tracker gives on the same frames, frame for frame. Peer to peer, and through a router
+process with the members its clients."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
+
+from tests.faults.router_process import new_router
 from tests.scale.fleet import (
     PERIOD_S,
     Fleet,
@@ -26,14 +30,18 @@ FRAMES = 150  # 15 s
 
 
 @needs_kitti
-def test_kill_join_and_stop_leave_every_frame_one_equal_answer(tmp_path: Path) -> None:
+@pytest.mark.parametrize("through", ["peers", "router"])
+def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
+    tmp_path: Path, through: str
+) -> None:
     frames = fleet_frames(SENSORS, FRAMES)
-    group = Group(tmp_path)
+    router = new_router().start() if through == "router" else None
+    group = Group(tmp_path, router=None if router is None else router.endpoint)
     fleet = None
     try:
         for name in ("m-a", "m-b", "m-c"):
             group.add(name)
-        with planner_session(group.endpoints()) as session:
+        with planner_session(group) as session:
             planner = Planner()
             sub = session.declare_subscriber("fleet/*/*/tracks", planner.on_tracks)
             fleet = Fleet(session, frames)
@@ -60,11 +68,12 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(tmp_path: Path) -
             survivors = list(group.members.values())
             failovers = sum(metric(m.metrics(), "simpletrack_failovers_total") for m in survivors)
             handoffs = sum(
-                metric(m.metrics(), "simpletrack_handoffs_total", direction="in")
-                for m in survivors
+                metric(m.metrics(), "simpletrack_handoffs_total", direction="in") for m in survivors
             )
             assert failovers > 0 and handoffs > 0
     finally:
         if fleet is not None:
             fleet.close()
         group.stop_all()
+        if router is not None:
+            router.stop()
