@@ -24,9 +24,20 @@ def build_parser() -> argparse.ArgumentParser:
         description="SimpleTrack 3D multi-object tracking as a Zenoh streaming service.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    from simpletrack.cli import bench, demo, eval, plot, record, replay, serve, track, watch
+    from simpletrack.cli import (
+        bench,
+        demo,
+        eval,
+        plot,
+        record,
+        replay,
+        serve,
+        status,
+        track,
+        watch,
+    )
 
-    for command in (track, eval, plot, replay, record, demo, watch, bench, serve):
+    for command in (track, eval, plot, replay, record, demo, watch, status, bench, serve):
         command.register(sub)
     return parser
 

@@ -22,7 +22,7 @@ import zenoh
 from zenoh import ext
 
 from simpletrack.core.tracker import Tracker
-from simpletrack.server.custody import Shared
+from simpletrack.server.custody import Heard, Shared
 from simpletrack.server.group import Membership, Role
 from simpletrack.server.intake import Inbound, Intake, Kind, WorkQueue, depth, worker_index
 from simpletrack.server.logs import get_logger
@@ -34,8 +34,7 @@ from simpletrack.server.settings import ServiceSettings, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
-from simpletrack.wire.codec import DecodeLimits, encode
-from simpletrack.wire.header import peek_header
+from simpletrack.wire.codec import DecodeLimits, Rejection, decode_track_frame, encode
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import ServiceStatus
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
@@ -262,19 +261,28 @@ class Service:
         return False
 
     def _on_tracks(self, sample: zenoh.Sample) -> None:
+        """Tracks frames of sensors this member owns or stands by for: how far planners
+        have them, and the ids they hold (a takeover neither repeats nor reuses them)."""
         names = self.keys.sensor_of(str(sample.key_expr))
         if names is None or self._shared is None:
             return
         sensor = f"{names[0]}/{names[1]}"
         if self.membership.role(sensor) is Role.NONE:
             return
-        _, stamp = peek_header(sample.payload.to_bytes())
-        if stamp is None:
+        out = decode_track_frame(sample.payload.to_bytes())
+        if isinstance(out, Rejection):
             return
+        frame, tracks = out
+        next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
         published = self._shared.published
         with self._shared.lock:
-            if sensor in published or len(published) < MAX_PUBLISHED:
-                published[sensor] = max(stamp, published.get(sensor, stamp))
+            old = published.get(sensor)
+            if old is not None:
+                published[sensor] = Heard(
+                    max(old.stamp_ns, frame.stamp_ns), max(old.next_id, next_id)
+                )
+            elif len(published) < MAX_PUBLISHED:
+                published[sensor] = Heard(frame.stamp_ns, next_id)
 
     def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
         names = self.keys.service_sensor_of(str(sample.key_expr))

@@ -49,11 +49,19 @@ class Takeover:
     """How a sensor came to this member: ``state`` None means a sensor nobody held."""
 
     state: SensorState | None
-    source: str  # "handoff", "failover", "restore" or "new"
+    source: str  # "handoff", "failover", "restore", "lost" or "new"
     replay: list[Inbound] = field(default_factory=list)
     covered_stamp_ns: int | None = None  # frames up to it are in the state already
     published_stamp_ns: int | None = None  # planners have tracks up to it
     missed: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Heard:
+    """The latest tracks frame heard on a sensor's key, from any member."""
+
+    stamp_ns: int
+    next_id: int  # above every id heard on the key
 
 
 @dataclass
@@ -67,8 +75,8 @@ class Shared:
     instance: str
     digest: str
     handoff_timeout_s: float
-    # vehicle/sensor -> stamp_ns of the last tracks frame heard on its key (any member's)
-    published: dict[str, int] = field(default_factory=dict)
+    # vehicle/sensor -> the last tracks frame heard on its key (any member's)
+    published: dict[str, Heard] = field(default_factory=dict)
     # vehicle/sensor -> a snapshot from this member's state dir, used when no member has it
     local: dict[str, SensorSnapshot] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
@@ -124,8 +132,14 @@ class Custody:
             if candidates:
                 snap, source = max(candidates, key=lambda c: c[0].written_ns)
         with self.shared.lock:
-            published = self.shared.published.get(key)
-        t = Takeover(None, source, published_stamp_ns=published)
+            heard = self.shared.published.get(key)
+        if source == "new" and heard is not None:
+            # Another member published this sensor's tracks and nobody has its state (it
+            # died before its first checkpoint, or with its standby): tracks start afresh,
+            # their ids above every one heard.
+            source = "lost"
+            self.registry.retired[key] = max(self.registry.retired.get(key, 0), heard.next_id)
+        t = Takeover(None, source, published_stamp_ns=None if heard is None else heard.stamp_ns)
         if snap is not None:
             t.state = self.registry.adopt(snap, use_floor=source == "restore")
             t.covered_stamp_ns = snap.last_stamp_ns
@@ -136,11 +150,13 @@ class Custody:
         m = self.shared.metrics
         if source == "handoff":
             m.handoffs.labels(direction="in").inc()
-        elif source == "failover":
+        elif source in ("failover", "lost"):
             m.failovers.inc()
         if t.missed and t.state is not None:
             # Tracks may have been born in the frames lost: new ids start past any of them.
-            t.state.tracker.next_id += ID_BLOCK
+            st = t.state
+            floor = 0 if heard is None else heard.next_id - st.id_base
+            st.tracker.next_id = max(st.tracker.next_id + ID_BLOCK, floor)
         log.info(
             "sensor_taken_over",
             vehicle=vehicle,
@@ -220,9 +236,10 @@ class Custody:
                 self.release(vehicle, sensor, owner)
 
     # ------------------------------------------------------------------ checkpoints
-    def send_checkpoints(self, final: bool = False) -> int:
-        """Each held sensor changed since its last checkpoint (or whose standby changed)
-        goes to its standby; ``final``: every held sensor, at shutdown."""
+    def send_checkpoints(self, final: bool = False, new_standby_only: bool = False) -> int:
+        """Each held sensor changed since its last checkpoint goes to its standby;
+        ``new_standby_only``: only those whose standby has none yet (a new sensor, a new
+        standby); ``final``: every held sensor, at shutdown."""
         sh = self.shared
         sent = 0
         for key, s in list(self.registry.sensors.items()):
@@ -230,7 +247,14 @@ class Custody:
             if standby is None:
                 continue
             mark = (standby, s.frames)
-            if s.checkpoint_mark == mark and not final:
+            if not final and (
+                s.checkpoint_mark == mark
+                or (
+                    new_standby_only
+                    and s.checkpoint_mark is not None
+                    and s.checkpoint_mark[0] == standby
+                )
+            ):
                 continue
             snap = s.snapshot(self.registry.digest)
             try:
@@ -273,4 +297,4 @@ def _seq_gap(snap: SensorSnapshot, replay: list[Inbound]) -> int:
     return max(0, first - snap.last_seq - 1) if first is not None else 0
 
 
-__all__ = ["Custody", "Released", "Shared", "Takeover"]
+__all__ = ["Custody", "Heard", "Released", "Shared", "Takeover"]

@@ -128,9 +128,14 @@ class Membership:
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         member = self._member_of(str(sample.key_expr))
-        if member is None or member == self.me:
+        if member is not None:
+            self.token(member, sample.kind == zenoh.SampleKind.PUT)
+
+    def token(self, member: str, up: bool) -> None:
+        """A member's token appeared (``up``) or went."""
+        if member == self.me:
             return
-        if sample.kind == zenoh.SampleKind.PUT:
+        if up:
             with self._lock:
                 self._leaving.pop(member, None)
             self._set(self._members | {member})

@@ -155,6 +155,8 @@ class Worker(threading.Thread):
             self.outbox.forget(s.vehicle, s.sensor)
             self.custody.settled.discard(f"{s.vehicle}/{s.sensor}")
         self.custody.housekeeping()
+        # A standby without any state of a sensor gets it now, not at the next interval.
+        self.custody.send_checkpoints(new_standby_only=True)
         if now >= self._next_checkpoint:
             self._next_checkpoint = now + self.ctx.settings.checkpoint_interval_s
             self.custody.release_unowned()

@@ -1,0 +1,114 @@
+"""``simpletrack status``: the instances on a prefix, what each holds and stands by for, and
+the hand-offs and failovers each has seen (their status queryables, asked once)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+
+import zenoh
+
+from simpletrack.cli.common import (
+    ZENOH_NOTE,
+    add_client_args,
+    check_prefix,
+    client_options,
+    open_client_session,
+)
+from simpletrack.cli.errors import UserError
+from simpletrack.wire import Rejection, ServiceStatus, decode_message
+from simpletrack.wire.keys import Keys
+
+EPILOG = f"""\
+One block per instance that answered: its view of the group's members, ready or not, queue
+depth, sensors owned (with last seq and tracks), sensors it stands by for, hand-offs in/out,
+failovers. Members that some instance sees but that did not answer are listed as silent.
+Exit 1 when no instance answered.
+
+{ZENOH_NOTE}
+
+examples:
+  simpletrack status                              # the service on this machine
+  simpletrack status --mode client --connect tcp/router:7447 --prefix fleet
+  simpletrack status --json                       # one ServiceStatus per line
+"""
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser(
+        "status",
+        help="members of the group on a prefix and the sensors each owns",
+        description="Ask every instance on the prefix for its status and print them.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
+    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for answers (2)")
+    p.add_argument("--json", action="store_true", help="print each ServiceStatus as JSON")
+    p.add_argument("--sensors", action="store_true", help="list every sensor owned")
+    add_client_args(p)
+    p.set_defaults(func=run)
+
+
+def collect(session: zenoh.Session, prefix: str, timeout: float) -> list[ServiceStatus]:
+    out = []
+    for reply in session.get(Keys(prefix).status("*"), timeout=timeout):
+        if reply.ok is None:
+            continue
+        status = decode_message(reply.ok.payload.to_bytes(), ServiceStatus)
+        if not isinstance(status, Rejection):
+            out.append(status)
+    return sorted(out, key=lambda s: s.instance)
+
+
+def render(statuses: list[ServiceStatus], with_sensors: bool) -> str:
+    lines = []
+    answered = {s.instance for s in statuses}
+    seen = {m for s in statuses for m in s.members}
+    for s in statuses:
+        tracks = sum(x.active_tracks for x in s.sensors)
+        lines.append(
+            f"{s.instance}  {'ready' if s.ready else 'NOT READY'}  members={','.join(s.members)}"
+            f"  owns={len(s.sensors)}  standby={s.standby_sensors}  tracks={tracks}"
+            f"  queue={s.queue_depth}  handoffs in/out={s.handoffs_in}/{s.handoffs_out}"
+            f"  failovers={s.failovers}  preset={s.preset}  version={s.version}"
+        )
+        if with_sensors:
+            for x in sorted(s.sensors, key=lambda x: (x.vehicle, x.sensor)):
+                lines.append(
+                    f"    {x.vehicle}/{x.sensor}  seq={x.last_seq}  frames={x.frames}"
+                    f"  tracks={x.active_tracks}  idle={x.idle_s:.1f}s"
+                )
+    for m in sorted(seen - answered):
+        lines.append(f"{m}  silent (a member in some view that did not answer)")
+    views = {tuple(s.members) for s in statuses}
+    if len(views) > 1:
+        lines.append("views differ: the group is changing, or partitioned")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    prefix = check_prefix(args.prefix)
+    if args.timeout <= 0:
+        raise UserError(f"--timeout {args.timeout} must be positive")
+    options = client_options(args)
+    with open_client_session(options) as session:
+        if options.mode.value == "peer":
+            # Peers route nothing for each other: the members beyond the one connected to
+            # are reached once gossip has connected this session to them (milliseconds).
+            time.sleep(min(0.5, args.timeout / 2))
+        statuses = collect(session, prefix, args.timeout)
+    if not statuses:
+        print(f"no instance answered on {prefix}/@simpletrack/*/status", file=sys.stderr)
+        return 1
+    if args.json:
+        for s in statuses:
+            print(json.dumps(dataclasses.asdict(s)))
+    else:
+        print(render(statuses, args.sensors))
+    return 0
+
+
+__all__ = ["collect", "register", "render", "run"]
