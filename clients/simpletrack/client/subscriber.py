@@ -14,6 +14,10 @@ Messages are decoded on Zenoh's thread and wait in a bounded buffer (the newest 
 frames are kept; ``dropped`` counts the rest). ``close()`` wakes every waiting consumer and
 closes the session the subscriber opened: no thread stays blocked at exit.
 
+A frame already delivered (the same sensor, ``seq`` and ``stamp_ns``: what two instances of
+a group would both send if one died between publishing a frame and the other hearing it) is
+not delivered again; ``duplicates`` counts them.
+
 A payload on a tracks key that does not decode is never silent: it is counted (``invalid``,
 ``invalid_reasons``), logged as a warning on this module's logger (at most one line a second,
 with the count of those not logged), and handed to ``on_invalid`` if given.
@@ -24,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
+from collections import deque
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -43,6 +48,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 INVALID_LOG_INTERVAL_S = 1.0  # a stream of garbage must not flood the planner's log
+RECENT_FRAMES = 16  # per key: a duplicate comes within a takeover, a few frames at most
+MAX_KEYS = 100_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +128,8 @@ class TrackSubscriber:
     ) -> None:
         self.key_expr = key_expr or tracks_key(prefix, vehicle, sensor)
         self.invalid = 0  # payloads on a tracks key that did not decode
+        self.duplicates = 0  # frames delivered before, not delivered again
+        self._recent: dict[str, deque[tuple[int, int]]] = {}  # key -> last (seq, stamp)
         self.invalid_reasons: dict[str, int] = {}  # the same, by ErrorReason value
         self.last_rejection: Rejection | None = None
         self._on_invalid = on_invalid
@@ -153,7 +162,18 @@ class TrackSubscriber:
         if isinstance(decoded, Rejection):
             self._invalid(str(sample.key_expr), decoded)
             return
-        msg = TrackMessage(str(sample.key_expr), decoded[0], decoded[1], received)
+        key = str(sample.key_expr)
+        frame = decoded[0]
+        recent = self._recent.get(key)
+        if recent is None:
+            if len(self._recent) >= MAX_KEYS:
+                self._recent.clear()
+            recent = self._recent[key] = deque(maxlen=RECENT_FRAMES)
+        if (frame.seq, frame.stamp_ns) in recent:
+            self.duplicates += 1
+            return
+        recent.append((frame.seq, frame.stamp_ns))
+        msg = TrackMessage(key, frame, decoded[1], received)
         if self._callback is None:
             self._mailbox.put(msg)
             return
