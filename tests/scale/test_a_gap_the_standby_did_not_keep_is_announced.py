@@ -78,6 +78,8 @@ def test_frames_beyond_the_standby_buffer_are_missed_announced_and_ids_move_on(
             born = after - used
             assert born and min(born) > max(used), (name, sorted(used), sorted(after))
     finally:
-        if fleet is not None:
-            fleet.close()
-        group.stop_all()
+        try:
+            if fleet is not None:
+                fleet.close()
+        finally:
+            group.stop_all()

@@ -72,8 +72,10 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             )
             assert failovers > 0 and handoffs > 0
     finally:
-        if fleet is not None:
-            fleet.close()
-        group.stop_all()
+        try:
+            if fleet is not None:
+                fleet.close()
+        finally:
+            group.stop_all()
         if router is not None:
             router.stop()
