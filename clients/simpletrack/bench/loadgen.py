@@ -9,6 +9,10 @@ latency is two readings of ONE clock, ``time.monotonic_ns()``: just before the p
 Protocol with the parent over a ``Connection``: child sends ``("ready", info)``, waits for
 ``"go"``, sends ``("start", t)`` when the warm-up ends and ``("end", t)`` after the last put,
 then ``("result", dict)`` once every answer arrived or ``drain_s`` passed.
+
+With ``record_answers`` the result also holds every track frame received, duplicates
+included, as ``(sensor, seq, instance, receipt ns)``, and each put's time: what the scale
+benchmark needs to tell which member answered which frame around a fault.
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ class LoadSpec:
     source: str  # "nuscenes" (real frames from `data`) or "synthetic"
     data: str  # the nuScenes centerpoint_val directory
     synthetic_boxes: int
+    connect: tuple[str, ...] = ()  # further endpoints (other members of a group)
+    record_answers: bool = False
 
     @property
     def ticks(self) -> int:
@@ -163,6 +169,7 @@ class Receiver:
         self.unexpected = 0
         self.window_start: int | None = None  # monotonic ns when the warm-up ended
         self.in_window = 0  # track frames received since window_start
+        self.answers: list[tuple[int, int, str, int]] = []  # with spec.record_answers
         self.lock = threading.Lock()
 
     def _index(self, sample: zenoh.Sample, payload: bytes) -> tuple[int, int] | None:
@@ -179,7 +186,10 @@ class Receiver:
         now = time.monotonic_ns()
         payload = sample.payload.to_bytes()
         at = self._index(sample, payload)
+        instance = str(peek(payload, "instance")) if self.spec.record_answers else ""
         with self.lock:
+            if at is not None and self.spec.record_answers:
+                self.answers.append((at[0], at[1], instance, now))
             if at is None or self.recv_ns[at]:
                 self.unexpected += 1
                 return
@@ -264,7 +274,8 @@ def _result(
             "received": recv.received,
             "refused": recv.errors,
             "refused_by_reason": dict(recv.reasons),
-            "lost": int(sent_ns.size - recv.received - recv.errors),
+            # Members of a group may each refuse the same frame: never below zero.
+            "lost": max(0, int(sent_ns.size - recv.received - recv.errors)),
             "unexpected": recv.unexpected,
             "window_sent": int(sent_ns[:, w:].size),
             "window_received": int(ok.sum()),
@@ -275,6 +286,11 @@ def _result(
             "put_lateness_s": (late_ns[:, w:].reshape(-1) * 1e-9).tolist(),
             "loadgen_cpu_s": cpu_s,
             "window_s": window_s,
+            **(
+                {"answers": list(recv.answers), "sent_ns": sent_ns.tolist()}
+                if spec.record_answers
+                else {}
+            ),
         }
 
 
@@ -284,7 +300,7 @@ def run(conn: Connection, spec: LoadSpec) -> None:
         streams = load_streams(spec)
         recv = Receiver(spec)
         base = f"{spec.prefix}/{spec.vehicle}"
-        with open_session(mode="peer", connect=[spec.endpoint]) as session:
+        with open_session(mode="peer", connect=[spec.endpoint, *spec.connect]) as session:
             session.declare_subscriber(f"{base}/*/tracks", recv.on_tracks)
             session.declare_subscriber(f"{base}/*/errors", recv.on_errors)
             pubs = [

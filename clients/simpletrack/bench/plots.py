@@ -171,3 +171,51 @@ def service_capacity(steps: list[dict[str, Any]], path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path)
     return path
+
+
+def scale_capacity(rows: list[dict[str, Any]], path: Path) -> Path:
+    """Capacity (sensors within the p99 limit) against group members, with the linear ideal
+    from one member, and the failover/hand-off times beside it."""
+    fig = _figure(10.0, 4.2)
+    ax1 = fig.add_subplot(1, 2, 1)
+    ax2 = fig.add_subplot(1, 2, 2)
+    members = [r["members"] for r in rows]
+    cap = [r["capacity"]["max_sensors_passing"] for r in rows]
+    ax1.plot(members, [c if c is not None else 0 for c in cap], "o-", label="measured")
+    one = next((c for m, c in zip(members, cap, strict=True) if m == 1), None)
+    if one:
+        ax1.plot(members, [one * m for m in members], ":", color="gray", label="linear from 1")
+    for m, c in zip(members, cap, strict=True):
+        ax1.annotate(
+            "none" if c is None else str(c),
+            (m, c or 0),
+            textcoords="offset points",
+            xytext=(0, 6),
+            ha="center",
+            fontsize=8,
+        )
+    ax1.set_xlabel("group members (processes)")
+    ax1.set_ylabel("sensors at 10 Hz with p99 under the limit")
+    ax1.set_xticks(members)
+    ax1.set_ylim(bottom=0)
+    ax1.set_title("Capacity against members")
+    for fault, style in (("failover", "o-"), ("handoff", "s--")):
+        sel = [r for r in rows if r.get(fault) and r[fault]["max_ms"] is not None]
+        if sel:
+            x = [r["members"] for r in sel]
+            ax2.plot(x, [r[fault]["max_ms"] for r in sel], style, label=f"{fault}, max")
+            ax2.plot(
+                x, [r[fault]["median_ms"] for r in sel], style, alpha=0.5, label=f"{fault}, median"
+            )
+    ax2.set_xlabel("group members (processes)")
+    ax2.set_ylabel("fault → another member's tracks (ms)")
+    ax2.set_xticks(members)
+    ax2.set_ylim(bottom=0)
+    ax2.set_title("What losing a member costs its sensors")
+    for ax in (ax1, ax2):
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    return path

@@ -29,8 +29,8 @@ import tempfile
 import time
 import urllib.request
 from collections import Counter
-from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -101,6 +101,7 @@ class Server:
     endpoint: str
     metrics_port: int | None
     log: Path
+    instance: str = "bench"
 
     def stop(self) -> None:
         if self.proc.poll() is None:
@@ -128,14 +129,22 @@ def _wait_ready(server: Server, ready: Callable[[], bool], timeout: float = 60.0
         time.sleep(0.05)
 
 
-def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
-    port, metrics_port = free_port(), free_port()
+def launch_tracker(
+    opts: ServiceBenchOptions,
+    tmp: Path,
+    *,
+    port: int | None = None,
+    instance: str = "bench",
+    extra: Sequence[str] = (),
+) -> Server:
+    """A ``simpletrack serve`` starting (``wait_tracker`` waits for it to be ready)."""
+    port, metrics_port = port or free_port(), free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     log = tmp / f"serve-{port}.log"
     cmd = serve_command(
         endpoint,
         metrics_port,
-        "bench",
+        instance,
         "--prefix",
         PREFIX,
         "--preset",
@@ -144,6 +153,7 @@ def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
         str(opts.workers),
         "--log-level",
         "error",
+        *extra,
     )
     env = {
         **os.environ,
@@ -153,16 +163,24 @@ def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
     }
     with open(log, "wb") as out:
         proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=out)
-    server = Server("service", proc, endpoint, metrics_port, log)
+    return Server("service", proc, endpoint, metrics_port, log, instance)
 
+
+def wait_tracker(server: Server) -> None:
     def ready() -> bool:
         try:
-            with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/readyz", timeout=2) as r:
+            url = f"http://127.0.0.1:{server.metrics_port}/readyz"
+            with urllib.request.urlopen(url, timeout=2) as r:
                 return int(r.status) == 200
         except OSError:
             return False
 
     _wait_ready(server, ready)
+
+
+def start_tracker(opts: ServiceBenchOptions, tmp: Path) -> Server:
+    server = launch_tracker(opts, tmp)
+    wait_tracker(server)
     return server
 
 
@@ -294,7 +312,7 @@ def _frame_name(frame: str) -> str:
 
 
 # ----------------------------------------------------------------------------- one step
-def _expect(conn: Connection, what: str, timeout: float) -> Any:
+def expect(conn: Connection, what: str, timeout: float) -> Any:
     if not conn.poll(timeout):
         raise BenchError(f"load generator: no {what!r} message within {timeout:.0f} s")
     tag, value = conn.recv()
@@ -323,9 +341,27 @@ def _counters(m: dict[str, float], name: str) -> dict[str, float]:
     return out
 
 
-def run_step(kind: str, sensors: int, opts: ServiceBenchOptions, tmp: Path) -> dict[str, Any]:
-    spec = loadgen.LoadSpec(
-        endpoint="",
+def cpu_seconds_all(servers: Sequence[Server]) -> float:
+    return sum(cpu_seconds(s.proc.pid) for s in servers)
+
+
+def scrape_all(servers: Sequence[Server]) -> dict[str, float]:
+    """The servers' /metrics samples added up (one server: its own)."""
+    out: dict[str, float] = {}
+    for server in servers:
+        if server.metrics_port:
+            for key, value in scrape(server.metrics_port).items():
+                out[key] = out.get(key, 0.0) + value
+    return out
+
+
+def load_spec(
+    sensors: int, opts: ServiceBenchOptions, servers: Sequence[Server]
+) -> loadgen.LoadSpec:
+    """The load of one step, connected to every server."""
+    return loadgen.LoadSpec(
+        endpoint=servers[0].endpoint,
+        connect=tuple(s.endpoint for s in servers[1:]),
         prefix=PREFIX,
         vehicle=VEHICLE,
         sensors=sensors,
@@ -337,45 +373,58 @@ def run_step(kind: str, sensors: int, opts: ServiceBenchOptions, tmp: Path) -> d
         data=str(opts.data),
         synthetic_boxes=opts.synthetic_boxes,
     )
-    ctx = multiprocessing.get_context("spawn")  # never fork a process that may hold Zenoh
+
+
+def run_step(kind: str, sensors: int, opts: ServiceBenchOptions, tmp: Path) -> dict[str, Any]:
     with running(kind, opts, tmp) as server:
-        spec = loadgen.LoadSpec(**{**asdict(spec), "endpoint": server.endpoint})
-        parent, child = ctx.Pipe()
-        gen = ctx.Process(target=loadgen.run, args=(child, spec), daemon=True)
-        gen.start()
-        child.close()
-        profiler = None
+        return measure_step(kind, sensors, opts, [server])
+
+
+def measure_step(
+    kind: str, sensors: int, opts: ServiceBenchOptions, servers: Sequence[Server]
+) -> dict[str, Any]:
+    """One step against running servers (several: the members of one group, their CPU and
+    counters added up); the load generator connects to all of them."""
+    spec = load_spec(sensors, opts, servers)
+    server = servers[0]
+    tracker = kind == "tracker"
+    ctx = multiprocessing.get_context("spawn")  # never fork a process that may hold Zenoh
+    parent, child = ctx.Pipe()
+    gen = ctx.Process(target=loadgen.run, args=(child, spec), daemon=True)
+    gen.start()
+    child.close()
+    profiler = None
+    try:
+        ready = expect(parent, "ready", 120.0)
+        parent.send("go")
+        expect(parent, "start", opts.warmup_s + 30.0)
+        cpu0, t0 = cpu_seconds_all(servers), time.monotonic()
+        m0 = scrape_all(servers) if tracker else {}
+        if opts.profile_dir is not None and tracker and len(servers) == 1:
+            prof_path = opts.profile_dir / f"service-{sensors}-sensors.txt"
+            profiler = start_profiler(server.proc.pid, opts.seconds, prof_path)
+        expect(parent, "end", opts.seconds + 60.0)
+        cpu1, t1 = cpu_seconds_all(servers), time.monotonic()
+        m1 = scrape_all(servers) if tracker else {}
+        result = expect(parent, "result", opts.drain_s + 60.0)
+        m2 = scrape_all(servers) if tracker else {}
+    finally:
+        gen.join(10)
+        if gen.is_alive():
+            gen.kill()
+        parent.close()
+    profile = None
+    if profiler is not None:
         try:
-            ready = _expect(parent, "ready", 120.0)
-            parent.send("go")
-            _expect(parent, "start", opts.warmup_s + 30.0)
-            cpu0, t0 = cpu_seconds(server.proc.pid), time.monotonic()
-            m0 = scrape(server.metrics_port) if server.metrics_port else {}
-            if opts.profile_dir is not None and kind == "tracker":
-                prof_path = opts.profile_dir / f"service-{sensors}-sensors.txt"
-                profiler = start_profiler(server.proc.pid, opts.seconds, prof_path)
-            _expect(parent, "end", opts.seconds + 60.0)
-            cpu1, t1 = cpu_seconds(server.proc.pid), time.monotonic()
-            m1 = scrape(server.metrics_port) if server.metrics_port else {}
-            result = _expect(parent, "result", opts.drain_s + 60.0)
-            m2 = scrape(server.metrics_port) if server.metrics_port else {}
-        finally:
-            gen.join(10)
-            if gen.is_alive():
-                gen.kill()
-            parent.close()
-        profile = None
-        if profiler is not None:
-            try:
-                _, err = profiler.communicate(timeout=opts.seconds + 30)
-                if profiler.returncode == 0:
-                    profile = summarize_profile(prof_path)
-                    profile["file"] = str(prof_path)
-                else:
-                    profile = {"error": err.decode(errors="replace")[-300:]}
-            except subprocess.TimeoutExpired:
-                profiler.kill()
-                profile = {"error": "py-spy did not finish"}
+            _, err = profiler.communicate(timeout=opts.seconds + 30)
+            if profiler.returncode == 0:
+                profile = summarize_profile(prof_path)
+                profile["file"] = str(prof_path)
+            else:
+                profile = {"error": err.decode(errors="replace")[-300:]}
+        except subprocess.TimeoutExpired:
+            profiler.kill()
+            profile = {"error": "py-spy did not finish"}
     window = t1 - t0
     cpu = cpu1 - cpu0
     done = max(result["received_during_window"], 1)
@@ -464,37 +513,48 @@ def capacity(steps: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def run_service_bench(
-    opts: ServiceBenchOptions, progress: Callable[[str], None] = print
+def sweep(
+    opts: ServiceBenchOptions,
+    kinds: Sequence[str],
+    step: Callable[[str, int], dict[str, Any]],
+    progress: Callable[[str], None] = print,
 ) -> dict[str, Any]:
+    """The capacity search: ``step(kind, sensors)`` for each sensor count of ``opts``, until
+    a tracker step saturates or the time budget runs out."""
     started = time.monotonic()
     steps: list[dict[str, Any]] = []
     stopped = "end of the sensor list"
-    kinds = ("tracker", "echo") if opts.echo else ("tracker",)
-    if opts.profile_dir is not None:
-        opts.profile_dir.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="simpletrack-bench-") as tmp:
-        for n in opts.sensors:
-            for kind in kinds:
-                spent = time.monotonic() - started
-                if spent + opts.warmup_s + opts.seconds + STEP_OVERHEAD_S > opts.budget_s:
-                    stopped = f"time budget of {opts.budget_s:g} s"
-                    break
-                progress(f"{kind:7s} {n:4d} sensors at {opts.rate_hz:g} Hz, {opts.seconds:g} s ...")
-                step = run_step(kind, n, opts, Path(tmp))
-                progress("        " + step_line(step))
-                steps.append(step)
-            if stopped.startswith("time"):
+    for n in opts.sensors:
+        for kind in kinds:
+            spent = time.monotonic() - started
+            if spent + opts.warmup_s + opts.seconds + STEP_OVERHEAD_S > opts.budget_s:
+                stopped = f"time budget of {opts.budget_s:g} s"
                 break
-            if any(s["saturated"] for s in steps if s["kind"] == "tracker" and s["sensors"] == n):
-                stopped = f"saturated at {n} sensors"
-                break
+            progress(f"{kind:7s} {n:4d} sensors at {opts.rate_hz:g} Hz, {opts.seconds:g} s ...")
+            result = step(kind, n)
+            progress("        " + step_line(result))
+            steps.append(result)
+        if stopped.startswith("time"):
+            break
+        if any(s["saturated"] for s in steps if s["kind"] == "tracker" and s["sensors"] == n):
+            stopped = f"saturated at {n} sensors"
+            break
     return {
         "steps": steps,
         "stopped": stopped,
         "capacity": capacity(steps) | {"p99_limit_ms": opts.p99_limit_ms},
         "elapsed_s": round(time.monotonic() - started, 1),
     }
+
+
+def run_service_bench(
+    opts: ServiceBenchOptions, progress: Callable[[str], None] = print
+) -> dict[str, Any]:
+    kinds = ("tracker", "echo") if opts.echo else ("tracker",)
+    if opts.profile_dir is not None:
+        opts.profile_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="simpletrack-bench-") as tmp:
+        return sweep(opts, kinds, lambda kind, n: run_step(kind, n, opts, Path(tmp)), progress)
 
 
 def step_line(step: dict[str, Any]) -> str:

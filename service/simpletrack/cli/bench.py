@@ -49,6 +49,24 @@ examples:
   simpletrack bench core --scenes 0 --kitti-sequences 0 --plot-dir plots/   # sweep only
 """
 
+SCALE_EPILOG = """\
+what it measures (for each member count M of --instances):
+  capacity: the service benchmark's search (same load generator, same pass/saturation rules)
+  against M `simpletrack serve --preset nuscenes` processes on one prefix, peer mode on
+  127.0.0.1, each on its own port and connected to the others, the load generator connected
+  to all; a fresh group per step. Then, for M >= 2, two runs of --fault-sensors sensors for
+  --duration s, one member hit half-way: failover (SIGKILL) and hand-off (SIGTERM). For the
+  sensors whose last track frame before the fault came from that member (TrackFrame.instance):
+  max and median time from the fault to their first track frame from another member; over
+  the frames put from 1 s before the fault on: how many got no track frame, and how many more
+  than one. Until the group protocol lands every member tracks every sensor it hears, so
+  capacity does not grow with M and every frame gets M answers: the figures show it.
+
+examples:
+  simpletrack bench scale --out out/scale/
+  simpletrack bench scale --instances 1,2 --sensors 2 --duration 2 --source synthetic  # smoke
+"""
+
 SERVICE_EPILOG = """\
 what it measures (one step per sensor count S, each with a fresh server):
   a spawned load generator publishes S sensors x 10 Hz of real nuScenes frames (cycled; all
@@ -212,6 +230,59 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     svc.set_defaults(func=run_service)
 
+    scale = sub.add_parser(
+        "scale",
+        help="capacity against group members; failover and hand-off times",
+        description="Capacity of 1, 2, 4 ... `simpletrack serve` members on one prefix, and what "
+        "killing (SIGKILL) or stopping (SIGTERM) one member costs its sensors.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=SCALE_EPILOG,
+    )
+    scale.add_argument(
+        "--instances", default="1,2,4", help="member counts to measure (default 1,2,4)"
+    )
+    scale.add_argument(
+        "--sensors",
+        default="1,5,10,15,20,30,40,60,80",
+        help="sensor counts of the capacity search (default 1,5,10,15,20,30,40,60,80)",
+    )
+    scale.add_argument(
+        "--duration",
+        type=float,
+        default=10.0,
+        help="measured seconds per capacity step and per fault run (default 10)",
+    )
+    scale.add_argument(
+        "--warmup", type=float, default=1.0, help="seconds of load before measuring (default 1)"
+    )
+    scale.add_argument("--rate", type=float, default=10.0, help="frames/s per sensor (default 10)")
+    scale.add_argument(
+        "--workers", type=int, default=2, help="worker threads per member (default 2)"
+    )
+    scale.add_argument(
+        "--fault-sensors",
+        type=int,
+        default=10,
+        help="sensors streaming during the fault runs (default 10)",
+    )
+    _add_source_args(scale)
+    scale.add_argument(
+        "--p99-limit",
+        type=float,
+        default=50.0,
+        help="a step passes with p99 under this many ms (default 50)",
+    )
+    scale.add_argument(
+        "--budget",
+        type=float,
+        default=300.0,
+        help="no new capacity step starts past this many seconds per member count (default 300)",
+    )
+    scale.add_argument(
+        "--out", type=Path, metavar="DIR", help="write scale.json and scale_capacity.png here"
+    )
+    scale.set_defaults(func=run_scale)
+
     fuzz = sub.add_parser(
         "fuzz",
         help="valid and mutated frames through a real service: every frame answered, nothing broken",
@@ -245,6 +316,27 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     faults.add_argument("--json", type=Path, help="write the results to this JSON file")
     faults.set_defaults(func=run_faults)
+
+
+def _add_source_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--source",
+        choices=("nuscenes", "synthetic"),
+        default="nuscenes",
+        help="real nuScenes frames (default) or synthetic ones (no data needed)",
+    )
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=DEFAULT_DATA,
+        help=f"the shared data directory (default {DEFAULT_DATA})",
+    )
+    parser.add_argument(
+        "--synthetic-boxes",
+        type=int,
+        default=128,
+        help="boxes per synthetic frame (default 128, the nuScenes mean)",
+    )
 
 
 def _out_paths(args: argparse.Namespace) -> None:
@@ -389,6 +481,76 @@ def run_service(args: argparse.Namespace) -> int:
         for p in written:
             print(f"wrote {p}")
     _write_json(args.json, doc)
+    return 0
+
+
+# ----------------------------------------------------------------------------- scale
+def run_scale(args: argparse.Namespace) -> int:
+    from simpletrack.bench import plots
+    from simpletrack.bench.scale import ScaleOptions, scale_tables
+    from simpletrack.bench.scale import run_scale as bench
+    from simpletrack.bench.service import BenchError, ServiceBenchOptions
+    from simpletrack.bench.stats import machine
+
+    instances = _int_list(args.instances, "--instances", 1, 32)
+    sensors = _int_list(args.sensors, "--sensors", 1, 1000)
+    _positive(args.duration, "--duration", 3600)
+    _positive(args.rate, "--rate", 1000)
+    _positive(args.budget, "--budget", 24 * 3600)
+    _positive(args.p99_limit, "--p99-limit", 1e6)
+    if args.warmup < 0 or args.warmup > 600:
+        raise UserError(f"--warmup {args.warmup:g} must be in 0..600 seconds")
+    if not (1 <= args.workers <= 64):
+        raise UserError(f"--workers {args.workers} must be in 1..64")
+    if not (1 <= args.fault_sensors <= 1000):
+        raise UserError(f"--fault-sensors {args.fault_sensors} must be in 1..1000")
+    if not (1 <= args.synthetic_boxes <= 10_000):
+        raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
+    scenes = args.data / "nuscenes" / "centerpoint_val"
+    if args.source == "nuscenes" and not scenes.is_dir():
+        raise UserError(
+            f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
+        )
+    _out_paths(argparse.Namespace(json=None, plot_dir=args.out))
+    bench_opts = ServiceBenchOptions(
+        sensors=sensors,
+        seconds=args.duration,
+        warmup_s=args.warmup,
+        rate_hz=args.rate,
+        workers=args.workers,
+        queue_size=64,
+        source=args.source,
+        data=scenes,
+        synthetic_boxes=args.synthetic_boxes,
+        budget_s=args.budget,
+        echo=False,
+        profile_dir=None,
+        p99_limit_ms=args.p99_limit,
+    )
+    opts = ScaleOptions(instances, bench_opts, args.fault_sensors)
+    before = machine()
+    try:
+        result = bench(opts, progress=lambda m: print(m, file=sys.stderr, flush=True))
+    except BenchError as exc:
+        raise UserError(str(exc)) from None
+    doc = {
+        "benchmark": "scale",
+        "command": "simpletrack " + " ".join(sys.argv[1:]),
+        "note": "before the group protocol every member tracks every sensor it hears",
+        "options": {
+            k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items() if k != "func"
+        }
+        | {"p99_limit_ms": args.p99_limit, "rate_hz": args.rate},
+        "machine_before": before,
+        "machine_after": machine(),
+        **result,
+    }
+    print(scale_tables(doc))
+    if args.out is not None:
+        png = plots.scale_capacity(result["members"], args.out / "scale_capacity.png")
+        doc["plots"] = [str(png)]
+        print(f"wrote {png}")
+        _write_json(args.out / "scale.json", doc)
     return 0
 
 

@@ -46,6 +46,16 @@ examples:
   simpletrack serve --mode client --connect tcp/10.0.0.1:7447 --connect tcp/10.0.0.2:7447 \\
       --config /etc/simpletrack.toml --preset nuscenes
   curl -s localhost:9464/metrics | grep simpletrack_frames
+  # 4 member processes on one host (one core each): instances <id>-0..3, metrics ports
+  # 9464..9467, listen ports 7447..7450, state in ./state/0..3
+  simpletrack serve --processes 4 --listen tcp/127.0.0.1:7447 --state-dir ./state
+
+--processes N starts N child `simpletrack serve` processes and supervises them: child i gets
+instance <instance>-<i>, metrics port <port>+i (0 stays 0) and state dir <state_dir>/<i>; in
+peer mode it listens on each --listen endpoint's port + i and connects to its siblings, so a
+vehicle connected to one child reaches them all; in client mode all connect to the same
+routers. SIGTERM/SIGINT go to every child (exit code: the worst child's); a child that dies is
+restarted after a back-off, and one that dies 6 times within a minute stops the group.
 """
 
 
@@ -77,7 +87,12 @@ def register(subparsers: Any) -> None:
     p.add_argument("--backpressure", choices=_values(Backpressure), help="what a full queue does")
     p.add_argument("--log-level", choices=_values(LogLevel))
     p.add_argument("--log-format", choices=_values(LogFormat))
-    p.set_defaults(func=run)
+    p.add_argument(
+        "--processes",
+        metavar="N",
+        help="run N member processes under a supervisor (default 1: this process; see below)",
+    )
+    p.set_defaults(func=run, serve_parser=p)
 
 
 def _values(enum: type[StrEnum]) -> list[str]:
@@ -117,8 +132,13 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simpletrack.cli import processes
+
+    n = processes.parse_processes(args.processes) if args.processes is not None else 1
     settings = settings_from_args(args)
     logs.configure(settings.log_format, settings.log_level)
+    if n > 1:
+        return processes.supervise(args.serve_parser, args, settings, n)
     zenoh.init_log_from_env_or("error")
     # The tracker's many short numpy calls hold the GIL between them; at Python's default 5 ms
     # switch interval Zenoh's delivery threads wait behind a busy worker (measured: 10-sensor

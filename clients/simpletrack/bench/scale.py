@@ -1,0 +1,259 @@
+"""``simpletrack bench scale``: capacity against the number of group members, and what losing
+a member costs the sensors it was serving.
+
+For each member count M: M ``simpletrack serve`` processes on one prefix, peer mode on
+127.0.0.1, each listening on its own port and connected to the others; the load generator
+(bench/loadgen.py) connects to all of them. Capacity is the service benchmark's search
+(bench/service.py ``sweep``), one fresh group per step. Then, for M >= 2, two fault runs,
+each with a fresh group and ``fault_sensors`` sensors streaming:
+- *failover*: SIGKILL one member half-way through the measured window;
+- *hand-off*: SIGTERM one member at the same point.
+For each sensor whose last track frame before the fault came from that member
+(``TrackFrame.instance``), the time from the fault to its first track frame from another
+member; and, over the frames put from 1 s before the fault to the end, how many got no track
+frame and how many got more than one.
+
+Until the group protocol is on main every member tracks every sensor it hears: capacity
+cannot grow with M, every frame gets M answers, and the figures say so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import signal
+import statistics
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from simpletrack.bench import loadgen
+from simpletrack.bench.service import (
+    Server,
+    ServiceBenchOptions,
+    expect,
+    launch_tracker,
+    load_spec,
+    measure_step,
+    sweep,
+    wait_tracker,
+)
+from simpletrack.spawn import free_port
+
+FAULTS = {"failover": signal.SIGKILL, "handoff": signal.SIGTERM}
+BEFORE_FAULT_S = 1.0  # frames put this long before the fault may still be in the victim's queue
+FAULT_DRAIN_S = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class ScaleOptions:
+    instances: tuple[int, ...]
+    bench: ServiceBenchOptions  # sensors to step through, seconds per step, the load
+    fault_sensors: int
+
+
+def member_name(i: int) -> str:
+    return f"m{i}"
+
+
+@contextlib.contextmanager
+def group(members: int, opts: ServiceBenchOptions, tmp: Path) -> Iterator[list[Server]]:
+    """``members`` services started together, each connected to the others' endpoints."""
+    ports = [free_port() for _ in range(members)]
+    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
+    servers: list[Server] = []
+    try:
+        for i, port in enumerate(ports):
+            siblings = [w for e in endpoints if e != endpoints[i] for w in ("--connect", e)]
+            servers.append(
+                launch_tracker(opts, tmp, port=port, instance=member_name(i), extra=siblings)
+            )
+        for server in servers:
+            wait_tracker(server)
+        yield servers
+    finally:
+        for server in servers:  # all at once: their drains overlap
+            if server.proc.poll() is None:
+                server.proc.send_signal(signal.SIGTERM)
+        for server in servers:
+            server.stop()
+
+
+# ----------------------------------------------------------------------------- faults
+def fault_figures(
+    answers: Sequence[Sequence[Any]],
+    sent_ns: Sequence[Sequence[int]],
+    fault_ns: int,
+    victim: str,
+    warm_ticks: int = 0,
+) -> dict[str, Any]:
+    """What a fault of member ``victim`` at ``fault_ns`` cost, from every track frame received
+    (``(sensor, seq, instance, receipt ns)``) and every put's time (``sent_ns[sensor][seq]``,
+    0: not sent), all on one monotonic clock."""
+    by_sensor: dict[int, list[tuple[int, str]]] = {}
+    per_frame: Counter[tuple[int, int]] = Counter()
+    for sensor, seq, instance, recv in answers:
+        by_sensor.setdefault(int(sensor), []).append((int(recv), str(instance)))
+        per_frame[int(sensor), int(seq)] += 1
+    gaps_ms: list[float] = []
+    not_recovered = 0
+    served = 0
+    for events in by_sensor.values():
+        events.sort()
+        before = [inst for t, inst in events if t < fault_ns]
+        if not before or before[-1] != victim:
+            continue
+        served += 1
+        after = next((t for t, inst in events if t >= fault_ns and inst != victim), None)
+        if after is None:
+            not_recovered += 1
+        else:
+            gaps_ms.append((after - fault_ns) / 1e6)
+    start = fault_ns - int(BEFORE_FAULT_S * 1e9)
+    window = [
+        (i, k)
+        for i, row in enumerate(sent_ns)
+        for k, t in enumerate(row)
+        if k >= warm_ticks and t > 0 and t >= start
+    ]
+    earlier = [
+        per_frame[i, k]
+        for i, row in enumerate(sent_ns)
+        for k, t in enumerate(row)
+        if k >= warm_ticks and 0 < t < start
+    ]
+    return {
+        "victim": victim,
+        "sensors_served_by_victim": served,
+        "max_ms": round(max(gaps_ms), 1) if gaps_ms else None,
+        "median_ms": round(statistics.median(gaps_ms), 1) if gaps_ms else None,
+        "not_recovered": not_recovered,
+        "window_frames": len(window),
+        "zero_answers": sum(1 for f in window if per_frame[f] == 0),
+        "multiple_answers": sum(1 for f in window if per_frame[f] > 1),
+        "answers_per_frame_before": round(sum(earlier) / len(earlier), 2) if earlier else None,
+    }
+
+
+def fault_run(
+    members: int, fault: str, opts: ScaleOptions, tmp: Path, progress: Callable[[str], None]
+) -> dict[str, Any]:
+    """A fresh group streaming ``fault_sensors`` sensors; the last member is hit half-way."""
+    bench = opts.bench
+    ctx = multiprocessing.get_context("spawn")  # never fork a process that may hold Zenoh
+    progress(f"{fault:8s} {members} members, {opts.fault_sensors} sensors, {bench.seconds:g} s ...")
+    with group(members, bench, tmp) as servers:
+        base = load_spec(opts.fault_sensors, bench, servers)
+        spec = replace(base, drain_s=FAULT_DRAIN_S, record_answers=True)
+        victim = servers[-1]
+        parent, child = ctx.Pipe()
+        gen = ctx.Process(target=loadgen.run, args=(child, spec), daemon=True)
+        gen.start()
+        child.close()
+        try:
+            expect(parent, "ready", 120.0)
+            parent.send("go")
+            started = int(expect(parent, "start", bench.warmup_s + 30.0))
+            at = started + int(bench.seconds * 0.5e9)
+            time.sleep(max(0.0, (at - time.monotonic_ns()) / 1e9))
+            fault_ns = time.monotonic_ns()  # the load generator's clock: CLOCK_MONOTONIC
+            os.kill(victim.proc.pid, FAULTS[fault])
+            expect(parent, "end", bench.seconds + 60.0)
+            result = expect(parent, "result", FAULT_DRAIN_S + 60.0)
+        finally:
+            gen.join(10)
+            if gen.is_alive():
+                gen.kill()
+            parent.close()
+    out = {
+        "fault": fault,
+        "signal": FAULTS[fault].name,
+        "members": members,
+        "sensors": opts.fault_sensors,
+        **fault_figures(
+            result["answers"], result["sent_ns"], fault_ns, victim.instance, spec.warm_ticks
+        ),
+    }
+    progress("        " + fault_line(out))
+    return out
+
+
+def fault_line(f: dict[str, Any]) -> str:
+    return (
+        f"{f['sensors_served_by_victim']} sensors last served by {f['victim']}: "
+        f"max {f['max_ms']} ms, median {f['median_ms']} ms to another member's tracks, "
+        f"{f['not_recovered']} never; of {f['window_frames']} frames around the fault "
+        f"{f['zero_answers']} unanswered, {f['multiple_answers']} answered more than once"
+    )
+
+
+# ----------------------------------------------------------------------------- the run
+def run_scale(opts: ScaleOptions, progress: Callable[[str], None] = print) -> dict[str, Any]:
+    started = time.monotonic()
+    rows: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="simpletrack-scale-") as tmp_name:
+        tmp = Path(tmp_name)
+        for members in opts.instances:
+            progress(f"--- {members} member{'s' if members > 1 else ''}")
+
+            def step(kind: str, sensors: int, members: int = members) -> dict[str, Any]:
+                with group(members, opts.bench, tmp) as servers:
+                    return measure_step(kind, sensors, opts.bench, servers) | {"members": members}
+
+            found = sweep(opts.bench, ("tracker",), step, progress)
+            row: dict[str, Any] = {"members": members, **found}
+            for fault in FAULTS:
+                row[fault] = fault_run(members, fault, opts, tmp, progress) if members > 1 else None
+            rows.append(row)
+    one = next((r for r in rows if r["members"] == 1), None)
+    base = one["capacity"]["max_sensors_passing"] if one else None
+    for r in rows:
+        cap = r["capacity"]["max_sensors_passing"]
+        r["ratio_to_one"] = round(cap / base, 2) if cap is not None and base else None
+    return {"members": rows, "elapsed_s": round(time.monotonic() - started, 1)}
+
+
+def _cell(value: Any, unit: str = "") -> str:
+    if value is None:
+        return "—"
+    return f"{value:g}{unit}" if isinstance(value, float) else f"{value}{unit}"
+
+
+def scale_tables(doc: dict[str, Any]) -> str:
+    limit = doc["options"]["p99_limit_ms"]
+    lines = [
+        f"capacity: most sensors at {doc['options']['rate_hz']:g} Hz with p99 < {limit:g} ms",
+        "| members | capacity | ratio to 1 | cores at max | stopped |",
+        "|---|---|---|---|---|",
+    ]
+    for r in doc["members"]:
+        c = r["capacity"]
+        lines.append(
+            f"| {r['members']} | {_cell(c['max_sensors_passing'])} | {_cell(r['ratio_to_one'])}"
+            f" | {_cell(c['server_cores_at_max'])} | {r['stopped']} |"
+        )
+    lines += [
+        "",
+        "faults: time from the fault to another member's tracks, for the sensors the hit "
+        "member served last; frames put from 1 s before the fault on",
+        "| members | fault | sensors | max | median | never | frames | unanswered | "
+        "answered > once | answers/frame before |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in doc["members"]:
+        for fault in FAULTS:
+            f = r.get(fault)
+            if f is None:
+                continue
+            lines.append(
+                f"| {r['members']} | {fault} ({f['signal']}) | {f['sensors_served_by_victim']}"
+                f"/{f['sensors']} | {_cell(f['max_ms'], ' ms')} | {_cell(f['median_ms'], ' ms')}"
+                f" | {f['not_recovered']} | {f['window_frames']} | {f['zero_answers']}"
+                f" | {f['multiple_answers']} | {_cell(f['answers_per_frame_before'])} |"
+            )
+    return "\n".join(lines)

@@ -1,0 +1,92 @@
+"""``simpletrack bench scale``: the fault arithmetic on made-up answers, and a tiny real run
+(1 and 2 members, 2 sensors, 2 s, synthetic frames; ~30 s) whose JSON, table and PNG carry
+every field a reader relies on. Figures are never asserted: they are the machine's."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from simpletrack.bench.scale import fault_figures
+from simpletrack.cli.main import main
+
+PNG = b"\x89PNG\r\n\x1a\n"
+MS = 1_000_000
+FAULT = 10_000 * MS
+
+
+def test_fault_figures_time_the_victim_s_sensors_and_count_frames_around_the_fault() -> None:
+    # Sensor 0: last served by m1 (the victim), next answered by m0 40 ms after the fault.
+    # Sensor 1: last served by m0: not the victim's, not timed.
+    # Sensor 2: last served by m1, then only m1 again (drain) and nobody else: never recovered.
+    sent = [[FAULT - 3000 * MS, FAULT - 100 * MS, FAULT + 20 * MS] for _ in range(3)]
+    answers = [
+        (0, 0, "m0", FAULT - 2990 * MS),
+        (0, 0, "m1", FAULT - 2980 * MS),  # frame 0 of sensor 0 answered twice
+        (0, 1, "m1", FAULT - 90 * MS),
+        (0, 2, "m0", FAULT + 40 * MS),
+        (1, 0, "m1", FAULT - 2990 * MS),
+        (1, 1, "m0", FAULT - 95 * MS),
+        (1, 2, "m0", FAULT + 30 * MS),
+        (2, 0, "m0", FAULT - 2990 * MS),
+        (2, 1, "m1", FAULT - 80 * MS),
+        (2, 1, "m1", FAULT + 5 * MS),  # a late duplicate from the victim itself
+    ]
+    f = fault_figures(answers, sent, FAULT, "m1")
+    assert f["sensors_served_by_victim"] == 2
+    assert f["max_ms"] == 40.0 and f["median_ms"] == 40.0
+    assert f["not_recovered"] == 1
+    # Frames put from 1 s before the fault on: seq 1 and 2 of each sensor.
+    assert f["window_frames"] == 6
+    assert f["zero_answers"] == 1  # sensor 2, seq 2
+    assert f["multiple_answers"] == 1  # sensor 2, seq 1
+    # Before the window: seq 0 of each sensor, answered 2, 1 and 1 times.
+    assert f["answers_per_frame_before"] == pytest.approx(4 / 3, abs=0.01)
+
+
+def test_warm_up_frames_and_unsent_frames_are_not_counted() -> None:
+    sent = [[FAULT - 10 * MS, FAULT + 10 * MS, 0]]
+    f = fault_figures([(0, 1, "m0", FAULT + 20 * MS)], sent, FAULT, "m1", warm_ticks=1)
+    assert f["window_frames"] == 1 and f["zero_answers"] == 0
+    assert f["sensors_served_by_victim"] == 0 and f["max_ms"] is None
+
+
+@pytest.mark.zenoh
+def test_a_tiny_scale_run_reports_capacity_and_both_faults(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rc = main(
+        [
+            *("bench", "scale", "--instances", "1,2", "--sensors", "2", "--duration", "2"),
+            *("--warmup", "0.5", "--source", "synthetic", "--synthetic-boxes", "20"),
+            *("--fault-sensors", "3", "--out", str(tmp_path)),
+        ]
+    )
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "| members | capacity | ratio to 1 |" in out
+    assert "failover (SIGKILL)" in out and "handoff (SIGTERM)" in out
+    doc = json.loads((tmp_path / "scale.json").read_text())
+    rows = {r["members"]: r for r in doc["members"]}
+    assert set(rows) == {1, 2}
+    for r in rows.values():
+        assert [s["sensors"] for s in r["steps"]] == [2]
+        assert all(s["members"] == r["members"] for s in r["steps"])
+        assert "max_sensors_passing" in r["capacity"]
+        assert "ratio_to_one" in r
+    assert rows[1]["failover"] is None and rows[1]["handoff"] is None
+    for fault in ("failover", "handoff"):
+        f = rows[2][fault]
+        assert f["victim"] == "m1" and f["members"] == 2 and f["sensors"] == 3
+        # 2 s at 10 Hz, the fault at 1 s: the window holds every frame put in the last ~2 s.
+        assert 3 * 10 <= f["window_frames"] <= 3 * 25
+        assert 0 <= f["zero_answers"] + f["multiple_answers"] <= f["window_frames"]
+        served = f["sensors_served_by_victim"]
+        assert 0 <= served <= 3
+        timed = served - f["not_recovered"]
+        assert (f["max_ms"] is None) == (timed == 0)
+        if timed:
+            assert 0 <= f["median_ms"] <= f["max_ms"]
+    assert (tmp_path / "scale_capacity.png").read_bytes()[:8] == PNG
