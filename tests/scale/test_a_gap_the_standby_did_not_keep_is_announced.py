@@ -70,7 +70,9 @@ def test_frames_beyond_the_standby_buffer_are_missed_announced_and_ids_move_on(
         moved = {e.vehicle + "/" + e.sensor for e in missed}
         for name in moved:
             old = [(f, t) for f, t in got[name] if f.instance == victim]
-            new = [(f, t) for f, t in got[name] if f.instance != victim and f.published_ns > killed_ns]
+            new = [
+                (f, t) for f, t in got[name] if f.instance != victim and f.published_ns > killed_ns
+            ]
             assert old and new, name
             used = {int(i) for _, t in old for i in t.id}
             after = {int(i) for _, t in new for i in t.id}
