@@ -369,9 +369,7 @@ class Service:
             sensors=sensors,
             members=sorted(self.membership.members),
             standby_sensors=self._standby_count(),
-            handoffs_in=int(self.metrics.handoffs.labels(direction="in")._value.get()),
-            handoffs_out=int(self.metrics.handoffs.labels(direction="out")._value.get()),
-            failovers=int(self.metrics.failovers._value.get()),
+            **(dict(self._shared.counts) if self._shared is not None else {}),
         )
 
     def _on_status_query(self, query: zenoh.Query) -> None:

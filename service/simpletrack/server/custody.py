@@ -80,6 +80,13 @@ class Shared:
     # vehicle/sensor -> a snapshot from this member's state dir, used when no member has it
     local: dict[str, SensorSnapshot] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    counts: dict[str, int] = field(  # for the status reply; the metrics count the same
+        default_factory=lambda: {"handoffs_in": 0, "handoffs_out": 0, "failovers": 0}
+    )
+
+    def count(self, what: str) -> None:
+        with self.lock:
+            self.counts[what] += 1
 
 
 class Custody:
@@ -150,8 +157,10 @@ class Custody:
         m = self.shared.metrics
         if source == "handoff":
             m.handoffs.labels(direction="in").inc()
+            self.shared.count("handoffs_in")
         elif source in ("failover", "lost"):
             m.failovers.inc()
+            self.shared.count("failovers")
         if t.missed and t.state is not None:
             # Tracks may have been born in the frames lost: new ids start past any of them.
             st = t.state
@@ -223,6 +232,7 @@ class Custody:
         self.settled.discard(key)
         self.released[key] = Released(snap, to, time.monotonic())
         self.shared.metrics.handoffs.labels(direction="out").inc()
+        self.shared.count("handoffs_out")
         log.info("sensor_handed_off", vehicle=vehicle, sensor=sensor, to=to, seq=snap.last_seq)
         return snap
 
