@@ -155,6 +155,7 @@ class Group:
     tmp: Path
     args: tuple[str, ...] = ()
     router: str | None = None
+    state: bool = False  # each member its own --state-dir, kept across its restarts
     # Room for 3 s of frames: on 2 shared cores a member starting (imports) stalls the
     # others that long, and a full queue drops (announced, but not what these tests test).
     env: dict[str, str] = field(default_factory=lambda: {"SIMPLETRACK_QUEUE_SIZE": "1000"})
@@ -168,14 +169,17 @@ class Group:
 
     def add(self, name: str, env: dict[str, str] | None = None) -> ServiceProcess:
         env = {**self.env, **(env or {})}
+        args = self.args
+        if self.state:
+            args = (*args, "--state-dir", str(self.tmp / "state" / name))
         if self.router is not None:
-            svc = start_client_service(self.tmp, self.router, *self.args, env=env, instance=name)
+            svc = start_client_service(self.tmp, self.router, *args, env=env, instance=name)
             wait_for(lambda: svc.http("/readyz")[0] == 200, 30, f"{name} ready")
             self.members[name] = svc
             return svc
         port = free_port()
         connect = [a for e in self.endpoints() for a in ("--connect", e)]
-        svc = start_service(self.tmp, *connect, *self.args, env=env, port=port, instance=name)
+        svc = start_service(self.tmp, *connect, *args, env=env, port=port, instance=name)
         self.members[name], self.ports[name] = svc, port
         return svc
 

@@ -1,6 +1,7 @@
 """Three members share 30 sensors replaying KITTI at 10 Hz. One is killed with SIGKILL
-mid-stream, then a new one joins, then one is stopped with SIGTERM: every detection frame
-gets exactly one tracks message, and the tracks (ids and boxes) are those one uninterrupted
+mid-stream, then a new one joins, then one is stopped with SIGTERM and started again under
+its name and state directory (a rolling update): every detection frame gets exactly one
+tracks message, and the tracks (ids and boxes) are those one uninterrupted
 tracker gives on the same frames, frame for frame. Peer to peer, and through a router
 process with the members its clients."""
 
@@ -36,7 +37,7 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
 ) -> None:
     frames = fleet_frames(SENSORS, FRAMES)
     router = new_router().start() if through == "router" else None
-    group = Group(tmp_path, router=None if router is None else router.endpoint)
+    group = Group(tmp_path, router=None if router is None else router.endpoint, state=True)
     fleet = None
     try:
         for name in ("m-a", "m-b", "m-c"):
@@ -48,13 +49,16 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             assert fleet.wait_for_service(10)
             wait_for(lambda: all(len(m.metrics()) > 0 for m in group.members.values()), 10)
             fleet.start()
-            wait_for(lambda: fleet.k >= 40, 20, "4 s of frames")
+            wait_for(lambda: fleet.k >= 30, 20, "3 s of frames")
             killed = group.remove("m-b")
             killed.stop(signal.SIGKILL)
-            wait_for(lambda: fleet.k >= 70, 20, "3 s after the kill")
+            wait_for(lambda: fleet.k >= 55, 20, "2.5 s after the kill")
             group.add("m-d")
-            wait_for(lambda: fleet.k >= 100, 20, "3 s after the join")
+            wait_for(lambda: fleet.k >= 80, 20, "2.5 s after the join")
             group.remove("m-a").stop(signal.SIGTERM)
+            wait_for(lambda: fleet.k >= 95, 20, "1.5 s after the stop")
+            group.add("m-a")  # back under its name: its sensors come back to it
+            back_ns = time.time_ns()
             fleet.done.wait(FRAMES * PERIOD_S + 10)
             n = fleet.n  # the shortest sequence's length, if under FRAMES
             deadline = time.monotonic() + 10
@@ -71,6 +75,7 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
                 metric(m.metrics(), "simpletrack_handoffs_total", direction="in") for m in survivors
             )
             assert failovers > 0 and handoffs > 0
+            assert planner.instances(back_ns)["m-a"] > 0, "the restarted member got nothing back"
     finally:
         try:
             if fleet is not None:

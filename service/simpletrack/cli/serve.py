@@ -155,3 +155,5 @@ def run(args: argparse.Namespace) -> int:
         ) from None
     except zenoh.ZError as e:
         raise UserError(f"cannot open the Zenoh session: {e}") from None
+    except app.StartError as e:
+        raise UserError(str(e)) from None

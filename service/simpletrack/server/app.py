@@ -46,6 +46,10 @@ SETTLE_S = 0.3
 MAX_PUBLISHED = 1_000_000
 
 
+class StartError(RuntimeError):
+    """The service cannot start as configured (the message says why and what to change)."""
+
+
 class Service:
     def __init__(self, settings: ServiceSettings) -> None:
         self.settings = settings
@@ -112,6 +116,11 @@ class Service:
             # Whose tracks planners already have: a takeover publishes only past them.
             self._declared.append(session.declare_subscriber(self.keys.all_tracks, self._on_tracks))
             self.stop_requested.wait(SETTLE_S)
+            if self.membership.twin:
+                raise StartError(
+                    f"instance {s.instance!r} is already live on prefix {s.prefix!r} (its "
+                    f"liveliness token is out): give each instance its own --instance"
+                )
         ctx = Context(
             settings=s,
             session=session,
@@ -183,6 +192,7 @@ class Service:
             session.declare_queryable(self.keys.snapshot(s.instance), self._on_snapshot_query)
         )
         self._token = session.liveliness().declare_token(self.keys.liveliness(s.instance))
+        self.membership.declared = True
         if self._routers is not None:
             self._declared.append(self._routers)
         self._ready = True
@@ -264,8 +274,8 @@ class Service:
         """Tracks frames of sensors this member owns or stands by for: how far planners
         have them, and the ids they hold (a takeover neither repeats nor reuses them)."""
         names = self.keys.sensor_of(str(sample.key_expr))
-        if names is None or self._shared is None:
-            return
+        if names is None or self._shared is None or len(self.membership.members) <= 1:
+            return  # alone, the only tracks are this member's own
         sensor = f"{names[0]}/{names[1]}"
         if self.membership.role(sensor) is Role.NONE:
             return
@@ -520,4 +530,4 @@ def run(settings: ServiceSettings) -> int:
     return 0
 
 
-__all__ = ["Service", "run"]
+__all__ = ["Service", "StartError", "run"]

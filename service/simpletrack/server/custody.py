@@ -227,10 +227,12 @@ class Custody:
             rel = self.released.get(key)
             return None if rel is None else rel.snapshot
         snap = state.snapshot(self.registry.digest)
+        # Released first, then gone: a question read without the lock (app.py) must never
+        # see the sensor neither held nor released.
+        self.released[key] = Released(snap, to, time.monotonic())
         self.registry.release(key)
         self.outbox.forget(vehicle, sensor)
         self.settled.discard(key)
-        self.released[key] = Released(snap, to, time.monotonic())
         self.shared.metrics.handoffs.labels(direction="out").inc()
         self.shared.count("handoffs_out")
         log.info("sensor_handed_off", vehicle=vehicle, sensor=sensor, to=to, seq=snap.last_seq)

@@ -77,6 +77,8 @@ class Membership:
         self._ticker: threading.Thread | None = None
         self.changes = 0
         self.changed_at = time.monotonic()
+        self.declared = False  # this instance's own token is out (set by the service)
+        self.twin = False
 
     # ------------------------------------------------------------------ views
     @property
@@ -134,6 +136,8 @@ class Membership:
     def token(self, member: str, up: bool) -> None:
         """A member's token appeared (``up``) or went."""
         if member == self.me:
+            if up and not self.declared:
+                self.twin = True  # another process already runs under this name
             return
         if up:
             with self._lock:
