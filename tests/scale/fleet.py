@@ -112,11 +112,16 @@ class Fleet(threading.Thread):
     vehicle's clock gives, whatever the machine's load): one session, one advanced publisher
     (with its cache) per sensor."""
 
-    def __init__(self, session: zenoh.Session, frames: dict[str, list[BoxArrays]]) -> None:
+    def __init__(
+        self, session: zenoh.Session, frames: dict[str, list[BoxArrays]], cache_frames: int = 100
+    ) -> None:
         super().__init__(daemon=True)
         self.frames = frames
         self.pubs = {
-            name: DetectionPublisher(session, *name.split("/"), classes=CLASSES) for name in frames
+            name: DetectionPublisher(
+                session, *name.split("/"), classes=CLASSES, cache_frames=cache_frames
+            )
+            for name in frames
         }
         self.sent: dict[str, int] = dict.fromkeys(frames, 0)
         self.n = min(len(v) for v in frames.values())

@@ -53,7 +53,17 @@ class Takeover:
     replay: list[Inbound] = field(default_factory=list)
     covered_stamp_ns: int | None = None  # frames up to it are in the state already
     published_stamp_ns: int | None = None  # planners have tracks up to it
-    missed: int = 0
+    missed: int = 0  # frames after the state that neither the standby nor the vehicle kept
+    from_cache: int = 0  # frames replayed from the vehicle's cache
+    vehicle: str = ""
+    sensor: str = ""
+    snapshot: SensorSnapshot | None = None
+    heard: Heard | None = None
+    done: bool = False
+
+    @property
+    def needs_cache(self) -> bool:
+        return self.missed > 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,11 +134,12 @@ class Custody:
     def take_over(self, vehicle: str, sensor: str, replies: list[SensorSnapshot]) -> Takeover:
         """This member owns the sensor and does not hold it: its latest state is the
         holder's answer (``replies``, from ``ask``), else the standby checkpoint, else this
-        member's state directory; then the frames kept since."""
+        member's state directory; then the frames kept since. ``complete`` finishes it
+        (after ``fetch_cache`` when ``needs_cache``)."""
         key = f"{vehicle}/{sensor}"
         self.settled.add(key)
         self.released.pop(key, None)
-        checkpoint, frames, dropped = self.standby.take(key)
+        checkpoint, frames, _ = self.standby.take(key)
         snap, source = None, "new"
         if replies:
             snap, source = max(replies, key=lambda s: s.written_ns), "handoff"
@@ -147,36 +158,82 @@ class Custody:
             source = "lost"
             self.registry.retired[key] = max(self.registry.retired.get(key, 0), heard.next_id)
         t = Takeover(None, source, published_stamp_ns=None if heard is None else heard.stamp_ns)
+        t.vehicle, t.sensor, t.snapshot, t.heard = vehicle, sensor, snap, heard
         if snap is not None:
             t.state = self.registry.adopt(snap, use_floor=source == "restore")
             t.covered_stamp_ns = snap.last_stamp_ns
         t.replay = [f for f in frames if _after(f, t.covered_stamp_ns)]
-        t.missed = dropped if source == "failover" else 0
         if source == "failover" and snap is not None:
-            t.missed += _seq_gap(snap, t.replay)
+            t.missed = _holes(snap.last_seq, t.replay)
+        return t
+
+    def complete(self, t: Takeover, cached: list[Inbound]) -> None:
+        """Add the frames the vehicle's cache gave (those after the state the standby did
+        not keep), count what is still missing, and account for the takeover."""
+        if cached:
+            have = {_stamp(f) for f in t.replay}
+            extra = [f for f in cached if _after(f, t.covered_stamp_ns) and _stamp(f) not in have]
+            t.from_cache = len(extra)
+            t.replay = sorted(t.replay + extra, key=lambda f: _stamp(f) or 0)
+            if t.snapshot is not None:
+                t.missed = _holes(t.snapshot.last_seq, t.replay)
         m = self.shared.metrics
-        if source == "handoff":
+        if t.source == "handoff":
             m.handoffs.labels(direction="in").inc()
             self.shared.count("handoffs_in")
-        elif source in ("failover", "lost"):
+        elif t.source in ("failover", "lost"):
             m.failovers.inc()
             self.shared.count("failovers")
         if t.missed and t.state is not None:
             # Tracks may have been born in the frames lost: new ids start past any of them.
             st = t.state
-            floor = 0 if heard is None else heard.next_id - st.id_base
+            floor = 0 if t.heard is None else t.heard.next_id - st.id_base
             st.tracker.next_id = max(st.tracker.next_id + ID_BLOCK, floor)
         log.info(
             "sensor_taken_over",
-            vehicle=vehicle,
-            sensor=sensor,
-            source=source,
-            seq=None if snap is None else snap.last_seq,
+            vehicle=t.vehicle,
+            sensor=t.sensor,
+            source=t.source,
+            seq=None if t.snapshot is None else t.snapshot.last_seq,
             replay=len(t.replay),
+            from_vehicle_cache=t.from_cache,
             missed=t.missed,
             members=len(self.shared.membership.members),
         )
-        return t
+
+    def fetch_cache(
+        self, vehicle: str, sensor: str, on_done: Callable[[list[Inbound]], None]
+    ) -> None:
+        """The frames the vehicle's advanced publisher still caches (its last
+        ``cache_frames``), from its cache queryable under ``<detections key>/@adv``.
+        ``on_done`` runs on a Zenoh thread."""
+        sh = self.shared
+        got: list[Inbound] = []
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None:
+                sample = reply.ok
+                got.append(
+                    Inbound(
+                        str(sample.key_expr),
+                        sample.payload.to_bytes(),
+                        time.time_ns(),
+                        time.perf_counter(),
+                    )
+                )
+
+        try:
+            sh.session.get(
+                f"{sh.keys.detections(vehicle, sensor)}/@adv/**",
+                zenoh.handlers.Callback(on_reply, lambda: on_done(got)),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                accept_replies=zenoh.ReplyKeyExpr.ANY,  # the cache answers on the frames' key
+                timeout=sh.handoff_timeout_s,
+            )
+        except zenoh.ZError as e:
+            log.warning("vehicle_cache_failed", vehicle=vehicle, sensor=sensor, error=str(e))
+            on_done([])
 
     def needs_asking(self) -> bool:
         """False when no other member could hold a sensor (alone, nothing released)."""
@@ -301,12 +358,16 @@ def _after(item: Inbound, stamp_ns: int | None) -> bool:
     return stamp is None or stamp > stamp_ns
 
 
-def _seq_gap(snap: SensorSnapshot, replay: list[Inbound]) -> int:
-    """Frames between the checkpoint and the first kept frame that never reached here."""
-    if snap.last_seq is None or not replay:
+def _stamp(item: Inbound) -> int | None:
+    return peek_header(item.payload)[1]
+
+
+def _holes(last_seq: int | None, replay: list[Inbound], limit: int = 100_000) -> int:
+    """Seqs between the state's last and the last frame to replay that none of them has."""
+    if last_seq is None or not replay:
         return 0
-    first, _ = peek_header(replay[0].payload)
-    return max(0, first - snap.last_seq - 1) if first is not None else 0
-
-
-__all__ = ["Custody", "Heard", "Released", "Shared", "Takeover"]
+    seqs = {s for s in (peek_header(f.payload)[0] for f in replay) if s is not None}
+    top = max(seqs, default=last_seq)
+    if top - last_seq > limit:  # a restarted publisher's seq: not a gap to count
+        return 0
+    return sum(1 for q in range(last_seq + 1, top + 1) if q not in seqs)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import zenoh
 
 from simpletrack.core.tracker import Tracker
-from simpletrack.server.custody import HANDOFF_TRIES, Custody, Shared
+from simpletrack.server.custody import HANDOFF_TRIES, Custody, Shared, Takeover
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.group import Role
 from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue
@@ -101,6 +101,7 @@ class Worker(threading.Thread):
         # first are in the state taken over; up to the second, planners have their tracks.
         self._limits: dict[str, tuple[int | None, int | None]] = {}
         self._pending: dict[str, deque[Inbound]] = {}  # sensors asked for, their frames
+        self._awaiting_cache: dict[str, Takeover] = {}  # restored, the vehicle's cache asked
         self._quiet = False
         self._next_snapshot = time.monotonic() + s.snapshot_interval_s
         self._next_checkpoint = time.monotonic() + s.checkpoint_interval_s
@@ -141,9 +142,11 @@ class Worker(threading.Thread):
 
     def _settle_pending(self) -> None:
         """At the end, takeovers still waiting for answers finish with what they have."""
+        for t in list(self._awaiting_cache.values()):
+            self._complete(t, [])
         for key in list(self._pending):
             vehicle, sensor = key.split("/")
-            self._answered(vehicle, sensor, [], False, HANDOFF_TRIES)
+            self._complete(self.custody.take_over(vehicle, sensor, []), [])
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
@@ -186,11 +189,12 @@ class Worker(threading.Thread):
                 self._wait_for_takeover(key, item)
                 return
             if key not in self.custody.settled and self.sensors.get(key) is None:
+                self._pending[key] = deque([item])
                 if self.custody.needs_asking():
-                    self._pending[key] = deque([item])
                     self._ask(vehicle, sensor, tries=1)
-                    return
-                self._take_over(vehicle, sensor, [])
+                else:
+                    self._answered(vehicle, sensor, [], False, HANDOFF_TRIES)
+                return
             if key in self._limits and self._after_takeover(key, item):
                 return
         self._track(item)
@@ -209,15 +213,22 @@ class Worker(threading.Thread):
     def _answered(
         self, vehicle: str, sensor: str, answers: list[SensorSnapshot], busy: bool, tries: int
     ) -> None:
-        key = f"{vehicle}/{sensor}"
+        """The group answered: restore; when the standby's frames leave a gap after the
+        state, ask the vehicle's cache for it before replaying (frames keep waiting)."""
         if busy and not answers and tries < HANDOFF_TRIES:
             self._ask(vehicle, sensor, tries + 1)
             return
-        frames = self._pending.pop(key, deque())
-        self._take_over(vehicle, sensor, answers)
-        for f in frames:
-            if not (key in self._limits and self._after_takeover(key, f)):
-                self._track(f)
+        t = self.custody.take_over(vehicle, sensor, answers)
+        if not t.needs_cache:
+            self._complete(t, [])
+            return
+
+        self._awaiting_cache[f"{vehicle}/{sensor}"] = t
+
+        def done(cached: list[Inbound]) -> None:
+            self.queue.put_control(lambda: self._complete(t, cached), force=True)
+
+        self.custody.fetch_cache(vehicle, sensor, done)
 
     def _wait_for_takeover(self, key: str, item: Inbound) -> None:
         frames = self._pending[key]
@@ -226,15 +237,19 @@ class Worker(threading.Thread):
             lost = frames.popleft()
             self._drop(lost, ErrorReason.DROPPED_QUEUE_FULL)
 
-    def _take_over(self, vehicle: str, sensor: str, answers: list[SensorSnapshot]) -> None:
-        """Restore, then replay: the state the sensor's last holder had (or its standby
-        checkpoint), then the frames kept since, published only past what planners have."""
-        t = self.custody.take_over(vehicle, sensor, answers)
-        key = f"{vehicle}/{sensor}"
+    def _complete(self, t: Takeover, cached: list[Inbound]) -> None:
+        """Replay what the state lacks (kept by the standby, or from the vehicle's cache),
+        then the frames that waited for the takeover; publish only past what planners have."""
+        key = f"{t.vehicle}/{t.sensor}"
+        if t.done:
+            return  # finished already (at shutdown, without the cache)
+        t.done = True
+        self._awaiting_cache.pop(key, None)
+        self.custody.complete(t, cached)
         if t.missed:
-            self._announce_missed(vehicle, sensor, t.missed)
+            self._announce_missed(t.vehicle, t.sensor, t.missed)
         self._limits[key] = (t.covered_stamp_ns, t.published_stamp_ns)
-        for f in t.replay:
+        for f in [*t.replay, *self._pending.pop(key, ())]:
             if not (key in self._limits and self._after_takeover(key, f)):
                 self._track(f)
         if t.replay:
