@@ -424,39 +424,46 @@ def _replies(session: zenoh.Session) -> int:
 # ----------------------------------------------------------------------------- compose wiring
 @pytest.mark.zenoh
 def test_the_compose_stack_tracks_the_demo_fleet_through_the_router(tmp_path: Path) -> None:
-    """deploy/zenoh/router.json5 in a router, `simpletrack serve` with the environment of
-    compose.yaml's first instance as its client (addresses moved to 127.0.0.1), and the
-    simulated fleet of docs/DEPLOY.md (`simpletrack demo --service external`) through the
-    router: every frame comes back tracked, and SIGTERM leaves a snapshot of every sensor."""
+    """deploy/zenoh/router.json5 in a router, every `simpletrack serve` instance of
+    compose.yaml with its environment as the router's client (addresses moved to 127.0.0.1),
+    and the simulated fleet of docs/DEPLOY.md (`simpletrack demo --service external`)
+    through the router: the instances share the sensors, every frame comes back tracked by
+    exactly one of them, and SIGTERM leaves a snapshot of every sensor with its owner."""
     compose = yaml.safe_load((ROOT / "deploy" / "compose.yaml").read_text())
+    names = sorted(n for n in compose["services"] if n.startswith("simpletrack-"))
+    assert len(names) >= 2, names
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = load(ZENOH_DIR / "router.json5")
     config.insert_json5("listen/endpoints", json.dumps([endpoint]))
     router = zenoh.open(config)
-    proc: subprocess.Popen[bytes] | None = None
+    procs: dict[str, tuple[subprocess.Popen[bytes], int]] = {}
     try:
-        env = {
-            k: re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", str(v))  # compose's ${VAR:-default}
-            for k, v in compose["services"]["simpletrack-a"]["environment"].items()
-        }
-        assert json.loads(env["SIMPLETRACK_ZENOH__CONNECT"]) == ["tcp/zenoh-router:7447"]
-        metrics_port = free_port()
-        env |= {
-            "SIMPLETRACK_ZENOH__CONNECT": json.dumps([endpoint]),
-            "SIMPLETRACK_METRICS_HOST": "127.0.0.1",
-            "SIMPLETRACK_METRICS_PORT": str(metrics_port),
-            "SIMPLETRACK_STATE_DIR": str(tmp_path / "state"),
-        }
-        log = tmp_path / "serve.log"
-        with log.open("wb") as out:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "simpletrack.cli.main", "serve"],
-                cwd=ROOT,
-                env={**_clean_environ(), **env},
-                stdout=out,
-                stderr=out,
-            )
-        wait_for(lambda: _ready(proc, metrics_port, log), 60, "the service ready")
+        for name in names:
+            env = {
+                k: re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", str(v))  # compose's ${VAR:-default}
+                for k, v in compose["services"][name]["environment"].items()
+            }
+            assert json.loads(env["SIMPLETRACK_ZENOH__CONNECT"]) == ["tcp/zenoh-router:7447"]
+            metrics_port = free_port()
+            env |= {
+                "SIMPLETRACK_ZENOH__CONNECT": json.dumps([endpoint]),
+                "SIMPLETRACK_METRICS_HOST": "127.0.0.1",
+                "SIMPLETRACK_METRICS_PORT": str(metrics_port),
+                "SIMPLETRACK_STATE_DIR": str(tmp_path / name),
+            }
+            log = tmp_path / f"{name}.log"
+            with log.open("wb") as out:
+                proc = subprocess.Popen(
+                    [sys.executable, "-m", "simpletrack.cli.main", "serve"],
+                    cwd=ROOT,
+                    env={**_clean_environ(), **env},
+                    stdout=out,
+                    stderr=out,
+                )
+            procs[name] = (proc, metrics_port)
+        for name, (proc, port) in procs.items():
+            log = tmp_path / f"{name}.log"
+            wait_for(lambda p=proc, q=port, g=log: _ready(p, q, g), 60, f"{name} ready")  # type: ignore[misc]
         # The command docs/DEPLOY.md gives for feeding the compose stack.
         summary = tmp_path / "demo.json"
         command = "demo --service external --mode client --connect {} --duration 3 --no-live"
@@ -475,9 +482,14 @@ def test_the_compose_stack_tracks_the_demo_fleet_through_the_router(tmp_path: Pa
         assert frames["published"] > 0
         assert frames["tracked"] == frames["published"] and frames["rejected"] == {}
         streams = sorted(json.loads(summary.read_text())["streams"])
+        tracked = {name: _tracked(port) for name, (_, port) in procs.items()}
+        assert sum(tracked.values()) == frames["published"], tracked  # each frame once
+        assert sum(1 for n in tracked.values() if n > 0) >= 2, tracked  # shared, not copied
     finally:
-        if proc is not None and proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
+        for proc, _ in procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc, _ in procs.values():
             try:
                 assert proc.wait(30) == 0
             except subprocess.TimeoutExpired:
@@ -485,8 +497,18 @@ def test_the_compose_stack_tracks_the_demo_fleet_through_the_router(tmp_path: Pa
                 proc.wait()
                 raise
         router.close()  # type: ignore[no-untyped-call]
-    for stream in streams:  # every sensor snapshotted on SIGTERM
-        assert (tmp_path / "state" / f"{stream}.snap").is_file(), stream
+    for stream in streams:  # every sensor snapshotted on SIGTERM, by the member that had it
+        assert any((tmp_path / n / f"{stream}.snap").is_file() for n in names), stream
+
+
+def _tracked(port: int) -> float:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+        text = r.read().decode()
+    return sum(
+        float(line.rpartition(" ")[2])
+        for line in text.splitlines()
+        if line.startswith("simpletrack_frames_tracked_total")
+    )
 
 
 def _clean_environ() -> dict[str, str]:
