@@ -408,6 +408,25 @@ def run_core(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- service
+def _check_load(args: argparse.Namespace) -> Path:
+    """The load options ``bench service`` and ``bench scale`` share; the scenes directory."""
+    _positive(args.rate, "--rate", 1000)
+    _positive(args.budget, "--budget", 24 * 3600)
+    _positive(args.p99_limit, "--p99-limit", 1e6)
+    if args.warmup < 0 or args.warmup > 600:
+        raise UserError(f"--warmup {args.warmup:g} must be in 0..600 seconds")
+    if not (1 <= args.workers <= 64):
+        raise UserError(f"--workers {args.workers} must be in 1..64")
+    if not (1 <= args.synthetic_boxes <= 10_000):
+        raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
+    scenes: Path = args.data / "nuscenes" / "centerpoint_val"
+    if args.source == "nuscenes" and not scenes.is_dir():
+        raise UserError(
+            f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
+        )
+    return scenes
+
+
 def run_service(args: argparse.Namespace) -> int:
     from simpletrack.bench import plots
     from simpletrack.bench.report import service_tables
@@ -416,22 +435,9 @@ def run_service(args: argparse.Namespace) -> int:
 
     sensors = _int_list(args.sensors, "--sensors", 1, 1000)  # the service's max_sensors
     _positive(args.seconds, "--seconds", 3600)
-    _positive(args.rate, "--rate", 1000)
-    _positive(args.budget, "--budget", 24 * 3600)
-    _positive(args.p99_limit, "--p99-limit", 1e6)
-    if args.warmup < 0 or args.warmup > 600:
-        raise UserError(f"--warmup {args.warmup:g} must be in 0..600 seconds")
-    if not (1 <= args.workers <= 64):
-        raise UserError(f"--workers {args.workers} must be in 1..64")
+    scenes = _check_load(args)
     if not (1 <= args.queue_size <= 100_000):
         raise UserError(f"--queue-size {args.queue_size} must be in 1..100000")
-    if not (1 <= args.synthetic_boxes <= 10_000):
-        raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
-    scenes = args.data / "nuscenes" / "centerpoint_val"
-    if args.source == "nuscenes" and not scenes.is_dir():
-        raise UserError(
-            f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
-        )
     if args.profile is not None:
         import shutil
 
@@ -495,22 +501,9 @@ def run_scale(args: argparse.Namespace) -> int:
     instances = _int_list(args.instances, "--instances", 1, 32)
     sensors = _int_list(args.sensors, "--sensors", 1, 1000)
     _positive(args.duration, "--duration", 3600)
-    _positive(args.rate, "--rate", 1000)
-    _positive(args.budget, "--budget", 24 * 3600)
-    _positive(args.p99_limit, "--p99-limit", 1e6)
-    if args.warmup < 0 or args.warmup > 600:
-        raise UserError(f"--warmup {args.warmup:g} must be in 0..600 seconds")
-    if not (1 <= args.workers <= 64):
-        raise UserError(f"--workers {args.workers} must be in 1..64")
+    scenes = _check_load(args)
     if not (1 <= args.fault_sensors <= 1000):
         raise UserError(f"--fault-sensors {args.fault_sensors} must be in 1..1000")
-    if not (1 <= args.synthetic_boxes <= 10_000):
-        raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
-    scenes = args.data / "nuscenes" / "centerpoint_val"
-    if args.source == "nuscenes" and not scenes.is_dir():
-        raise UserError(
-            f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
-        )
     _out_paths(argparse.Namespace(json=None, plot_dir=args.out))
     bench_opts = ServiceBenchOptions(
         sensors=sensors,

@@ -8,7 +8,6 @@ notes which key each publisher publishes on, so that a miss can be told to its s
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 
 import zenoh
@@ -16,11 +15,9 @@ from zenoh import ext
 
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
-from simpletrack.server.outbox import put
+from simpletrack.server.outbox import missed_notice, put
 from simpletrack.wire.codec import encode
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.models import FrameError
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
 log = get_logger("service")
 
@@ -81,15 +78,12 @@ class MissCounter:
             total = self.by_sensor[sensor] = self.by_sensor.get(sensor, 0) + miss.nb
         self._metrics.count_missed(vehicle, miss.nb)
         log.warning("frames_missed", vehicle=vehicle, sensor=name, missed=miss.nb, total=total)
-        err = FrameError(
-            schema_version=SCHEMA_VERSION,
-            vehicle=vehicle,
-            sensor=name,
-            reason=ErrorReason.MISSED,
-            detail=f"{miss.nb} frames lost in transport and not in the publisher's cache"
+        err = missed_notice(
+            vehicle,
+            name,
+            f"{miss.nb} frames lost in transport and not in the publisher's cache"
             f" ({total} on this sensor since the service started)",
-            instance=self._instance,
-            received_ns=time.time_ns(),
+            self._instance,
         )
         try:
             # DROP: this runs on Zenoh's miss-listener thread, which must never block.

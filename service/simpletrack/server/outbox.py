@@ -4,6 +4,7 @@ The one builder of a ``FrameError`` lives here, for the workers and for the shut
 from __future__ import annotations
 
 import contextlib
+import time
 
 import zenoh
 
@@ -58,6 +59,19 @@ def frame_error(
         instance=instance,
         received_ns=received_ns,
         seqs=seqs,
+    )
+
+
+def missed_notice(vehicle: str, sensor: str, detail: str, instance: str) -> FrameError:
+    """A notice of frames no member will ever see (lost in transport, or in a takeover's gap)."""
+    return FrameError(
+        schema_version=SCHEMA_VERSION,
+        vehicle=vehicle,
+        sensor=sensor,
+        reason=ErrorReason.MISSED,
+        detail=detail[:1024],
+        instance=instance,
+        received_ns=time.time_ns(),
     )
 
 

@@ -21,7 +21,7 @@ from simpletrack.server.group import Role
 from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
-from simpletrack.server.outbox import Outbox, congestion_control, dropped
+from simpletrack.server.outbox import Outbox, congestion_control, dropped, missed_notice
 from simpletrack.server.registry import SensorRegistry
 from simpletrack.server.sensors import (
     Arrival,
@@ -45,8 +45,8 @@ from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
 from simpletrack.wire.header import peek_header
 from simpletrack.wire.keys import Keys
-from simpletrack.wire.models import NAME_PATTERN, FrameError, SensorSnapshot
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
+from simpletrack.wire.reasons import ErrorReason
 
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
 NAME_RE = re.compile(NAME_PATTERN)
@@ -277,15 +277,12 @@ class Worker(threading.Thread):
     def _announce_missed(self, vehicle: str, sensor: str, n: int) -> None:
         self.ctx.metrics.count_missed(vehicle, n)
         log.warning("frames_missed", vehicle=vehicle, sensor=sensor, missed=n, at="takeover")
-        err = FrameError(
-            schema_version=SCHEMA_VERSION,
-            vehicle=vehicle,
-            sensor=sensor,
-            reason=ErrorReason.MISSED,
-            detail=f"{n} frames of the takeover's gap were not kept (standby_frames) or never "
-            f"reached this member; ids continue past any born in them",
-            instance=self.ctx.settings.instance,
-            received_ns=time.time_ns(),
+        err = missed_notice(
+            vehicle,
+            sensor,
+            f"{n} frames of the takeover's gap were kept neither by the standby nor by the "
+            f"vehicle's cache; ids continue past any born in them",
+            self.ctx.settings.instance,
         )
         self.outbox.notice(err)
 
