@@ -2,8 +2,9 @@
 mid-stream, then a new one joins, then one is stopped with SIGTERM and started again under
 its name and state directory (a rolling update): every detection frame gets exactly one
 tracks message, and the tracks (ids and boxes) are those one uninterrupted
-tracker gives on the same frames, frame for frame. Peer to peer, and through a router
-process with the members its clients."""
+tracker gives on the same frames, frame for frame. Peer to peer, through a router process
+with the members its clients, and with per-sensor subscriptions (each member hears only the
+sensors it owns or stands by for)."""
 
 from __future__ import annotations
 
@@ -31,13 +32,15 @@ FRAMES = 150  # 15 s
 
 
 @needs_kitti
-@pytest.mark.parametrize("through", ["peers", "router"])
+@pytest.mark.parametrize("through", ["peers", "router", "owned"])
 def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
     tmp_path: Path, through: str
 ) -> None:
     frames = fleet_frames(SENSORS, FRAMES)
     router = new_router().start() if through == "router" else None
     group = Group(tmp_path, router=None if router is None else router.endpoint, state=True)
+    if through == "owned":  # per-sensor subscriptions: each member hears only its share
+        group.env["SIMPLETRACK_SUBSCRIBE"] = "owned"
     fleet = None
     try:
         for name in ("m-a", "m-b", "m-c"):
@@ -76,6 +79,15 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             )
             assert failovers > 0 and handoffs > 0
             assert planner.instances(back_ns)["m-a"] > 0, "the restarted member got nothing back"
+            if through == "owned":
+                for m in survivors:
+                    values = m.metrics()
+                    # A frame or so per sensor that moved, in the instant its subscription
+                    # is being withdrawn (a wide member: a third of the fleet's frames).
+                    not_owned = metric(values, "simpletrack_frames_not_owned_total")
+                    heard = metric(values, "simpletrack_frames_received_total")
+                    assert not_owned <= SENSORS, (not_owned, heard)
+                    assert 0 < heard < SENSORS * n, heard  # its share, not the fleet
     finally:
         try:
             if fleet is not None:

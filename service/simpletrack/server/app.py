@@ -30,8 +30,9 @@ from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
 from simpletrack.server.misses import MissCounter
 from simpletrack.server.outbox import MSGPACK, dropped, frame_error, put
 from simpletrack.server.sensors import SensorBudget
-from simpletrack.server.settings import ServiceSettings, config_digest
+from simpletrack.server.settings import ServiceSettings, Subscribe, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
+from simpletrack.server.subscriptions import Subscriptions
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
 from simpletrack.wire.codec import DecodeLimits, Rejection, decode_track_frame, encode
@@ -83,6 +84,7 @@ class Service:
         self._shared: Shared | None = None
         self._subscriber: Any = None  # the detections subscriber: undeclared first at stop
         self._token: Any = None
+        self._owned: Subscriptions | None = None  # subscribe = "owned"
         self._handoff_queryable: Any = None
 
     # ------------------------------------------------------------------ start
@@ -173,18 +175,30 @@ class Service:
                 self.keys.handoff(s.instance), self._on_handoff_query
             )
         self.misses = misses = MissCounter(intake, self.keys, self.metrics, s.instance, session)
-        # Recovery asks a vehicle's cache for the frames a gap (or its heartbeat) shows were
-        # missed and holds that vehicle's later frames until they come: order is kept.
-        subscriber = ext.declare_advanced_subscriber(
-            session,
-            self.keys.all_detections,
-            intake.handler(misses),
-            # Without a cap, a service that first hears a vehicle's heartbeat takes its whole
-            # cache: frames a restored sensor already tracked, up to seconds old.
-            history=ext.HistoryConfig(max_samples=s.history_frames),
-            recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
-        )
-        self._subscriber = (subscriber.sample_miss_listener(misses.on_miss), subscriber)
+        if s.group and s.subscribe is Subscribe.OWNED:
+            self._owned = Subscriptions(
+                session,
+                self.keys,
+                self.membership,
+                lambda: intake.handler(misses),
+                misses.on_miss,
+                s.history_frames,
+            )
+            self._owned.start()
+            self._owned.settle(timeout=5.0)  # this member's share subscribed before its token
+        else:
+            # Recovery asks a vehicle's cache for the frames a gap (or its heartbeat) shows
+            # were missed and holds that vehicle's later frames until they come: order kept.
+            subscriber = ext.declare_advanced_subscriber(
+                session,
+                self.keys.all_detections,
+                intake.handler(misses),
+                # Without a cap, a service that first hears a vehicle's heartbeat takes its
+                # whole cache: frames a restored sensor already tracked, up to seconds old.
+                history=ext.HistoryConfig(max_samples=s.history_frames),
+                recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
+            )
+            self._subscriber = (subscriber.sample_miss_listener(misses.on_miss), subscriber)
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )
@@ -260,6 +274,8 @@ class Service:
 
     def _on_members(self, before: frozenset[str], after: frozenset[str]) -> None:
         self.metrics.members.set(len(after))
+        if self._owned is not None:
+            self._owned.changed()
 
     def _wanted(self, key: str) -> bool:
         """Zenoh callback, every frame: only frames of sensors this member owns or stands
@@ -460,6 +476,8 @@ class Service:
         if self._subscriber is not None:
             self._undeclare(*self._subscriber)
             self._subscriber = None
+        if self._owned is not None:
+            self._owned.close()
         deadline = time.monotonic() + s.shutdown_timeout_s
         for w in self._workers:
             w.drain_deadline = deadline

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import zenoh
@@ -131,11 +131,18 @@ class Custody:
             self.standby.checkpoint(sensor, snap)
 
     # ------------------------------------------------------------------ taking over
-    def take_over(self, vehicle: str, sensor: str, replies: list[SensorSnapshot]) -> Takeover:
+    def take_over(
+        self,
+        vehicle: str,
+        sensor: str,
+        replies: list[SensorSnapshot],
+        waiting: Sequence[Inbound] = (),
+    ) -> Takeover:
         """This member owns the sensor and does not hold it: its latest state is the
         holder's answer (``replies``, from ``ask``), else the standby checkpoint, else this
-        member's state directory; then the frames kept since. ``complete`` finishes it
-        (after ``fetch_cache`` when ``needs_cache``)."""
+        member's state directory; then the frames kept since. ``waiting``: the frames that
+        came while the group was asked. ``complete`` finishes it (after ``fetch_cache``
+        when the frames leave a gap after the state)."""
         key = f"{vehicle}/{sensor}"
         self.settled.add(key)
         self.released.pop(key, None)
@@ -163,20 +170,20 @@ class Custody:
             t.state = self.registry.adopt(snap, use_floor=source == "restore")
             t.covered_stamp_ns = snap.last_stamp_ns
         t.replay = [f for f in frames if _after(f, t.covered_stamp_ns)]
-        if source == "failover" and snap is not None:
-            t.missed = _holes(snap.last_seq, t.replay)
+        if source in ("failover", "handoff") and snap is not None:
+            t.missed = _holes(snap.last_seq, [*t.replay, *waiting])
         return t
 
-    def complete(self, t: Takeover, cached: list[Inbound]) -> None:
+    def complete(self, t: Takeover, cached: list[Inbound], waiting: Sequence[Inbound] = ()) -> None:
         """Add the frames the vehicle's cache gave (those after the state the standby did
         not keep), count what is still missing, and account for the takeover."""
         if cached:
-            have = {_stamp(f) for f in t.replay}
+            have = {_stamp(f) for f in [*t.replay, *waiting]}
             extra = [f for f in cached if _after(f, t.covered_stamp_ns) and _stamp(f) not in have]
             t.from_cache = len(extra)
             t.replay = sorted(t.replay + extra, key=lambda f: _stamp(f) or 0)
             if t.snapshot is not None:
-                t.missed = _holes(t.snapshot.last_seq, t.replay)
+                t.missed = _holes(t.snapshot.last_seq, [*t.replay, *waiting])
         m = self.shared.metrics
         if t.source == "handoff":
             m.handoffs.labels(direction="in").inc()

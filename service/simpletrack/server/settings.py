@@ -68,6 +68,11 @@ class Backpressure(StrEnum):
     BLOCK = "block"  # lossless: a full queue stops intake; Zenoh pushes back to BLOCK publishers
 
 
+class Subscribe(StrEnum):
+    WIDE = "wide"  # one subscriber on every sensor's detections
+    OWNED = "owned"  # one per sensor owned or stood by for, from the vehicles' tokens
+
+
 class LogFormat(StrEnum):
     JSON = "json"
     KV = "kv"
@@ -235,6 +240,10 @@ class ServiceSettings(BaseSettings):
     group: bool = Field(
         default=True,
         description="share the prefix's sensors with the other instances on it: each sensor tracked by one (false: track every sensor heard)",
+    )
+    subscribe: Subscribe = Field(
+        default=Subscribe.WIDE,
+        description="wide: hear every sensor's frames (any publisher); owned: subscribe per sensor owned or stood by for, found from the vehicles' advanced-publisher tokens (a plain put is not heard)",
     )
     checkpoint_interval_s: Seconds = Field(
         default=1.0,

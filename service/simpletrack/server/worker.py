@@ -218,12 +218,13 @@ class Worker(threading.Thread):
         if busy and not answers and tries < HANDOFF_TRIES:
             self._ask(vehicle, sensor, tries + 1)
             return
-        t = self.custody.take_over(vehicle, sensor, answers)
+        key = f"{vehicle}/{sensor}"
+        t = self.custody.take_over(vehicle, sensor, answers, self._pending.get(key, ()))
         if not t.needs_cache:
             self._complete(t, [])
             return
 
-        self._awaiting_cache[f"{vehicle}/{sensor}"] = t
+        self._awaiting_cache[key] = t
 
         def done(cached: list[Inbound]) -> None:
             self.queue.put_control(lambda: self._complete(t, cached), force=True)
@@ -245,13 +246,25 @@ class Worker(threading.Thread):
             return  # finished already (at shutdown, without the cache)
         t.done = True
         self._awaiting_cache.pop(key, None)
-        self.custody.complete(t, cached)
+        self.custody.complete(t, cached, self._pending.get(key, ()))
         if t.missed:
             self._announce_missed(t.vehicle, t.sensor, t.missed)
+        # Kept, cached and waiting frames overlap and interleave: one of each, in order.
+        frames, stamps = [], set()
+        for f in sorted([*t.replay, *self._pending.pop(key, ())], key=lambda f: _stamp(f) or 0):
+            stamp = _stamp(f)
+            if stamp is None or stamp not in stamps:
+                stamps.add(stamp)
+                frames.append(f)
         self._limits[key] = (t.covered_stamp_ns, t.published_stamp_ns)
-        for f in [*t.replay, *self._pending.pop(key, ())]:
+        for f in frames:
             if not (key in self._limits and self._after_takeover(key, f)):
                 self._track(f)
+        if stamps - {None}:
+            # A frame both cached and still on its way is in the state now: skip it then.
+            covered, published = self._limits.get(key, (None, t.published_stamp_ns))
+            top = max(st for st in stamps if st is not None)
+            self._limits[key] = (max(covered or top, top), published)
         if t.replay:
             self.ctx.metrics.replayed.inc(len(t.replay))
 
@@ -508,3 +521,7 @@ class Worker(threading.Thread):
             return
         state = self.sensors.get(f"{vehicle}/{sensor}")
         self._refuse(item, vehicle, sensor, state, dropped(reason, item.payload), counted)
+
+
+def _stamp(item: Inbound) -> int | None:
+    return peek_header(item.payload)[1]
