@@ -29,6 +29,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import zenoh
+from zenoh import ext
 
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.kitti import camera_to_tracker
@@ -62,6 +63,9 @@ class LoadSpec:
     synthetic_boxes: int
     connect: tuple[str, ...] = ()  # further endpoints (other members of a group)
     record_answers: bool = False
+    # Advanced publishers (cache, liveliness token), as DetectionPublisher declares: what a
+    # group with subscribe = "owned" finds sensors by.
+    advanced: bool = False
 
     @property
     def ticks(self) -> int:
@@ -215,7 +219,7 @@ class Receiver:
 
 def _publish(
     spec: LoadSpec,
-    pubs: list[zenoh.Publisher],
+    pubs: list[Any],  # zenoh.Publisher or an advanced one: both put
     streams: list[list[dict[str, Any]]],
     recv: Receiver,
     conn: Connection,
@@ -303,15 +307,26 @@ def run(conn: Connection, spec: LoadSpec) -> None:
         with open_session(mode="peer", connect=[spec.endpoint, *spec.connect]) as session:
             session.declare_subscriber(f"{base}/*/tracks", recv.on_tracks)
             session.declare_subscriber(f"{base}/*/errors", recv.on_errors)
-            pubs = [
-                session.declare_publisher(
-                    f"{base}/{sensor_name(i)}/detections",
-                    congestion_control=zenoh.CongestionControl.BLOCK,
-                )
-                for i in range(spec.sensors)
-            ]
+            keys = [f"{base}/{sensor_name(i)}/detections" for i in range(spec.sensors)]
+            block = zenoh.CongestionControl.BLOCK
+            plain = [session.declare_publisher(k, congestion_control=block) for k in keys]
+            pubs: list[Any] = plain
+            if spec.advanced:  # the plain ones then only tell when a member listens
+                pubs = [
+                    ext.declare_advanced_publisher(
+                        session,
+                        k,
+                        congestion_control=block,
+                        cache=ext.CacheConfig(100),
+                        sample_miss_detection=ext.MissDetectionConfig(
+                            heartbeat=0.5, sporadic_heartbeat=None
+                        ),
+                        publisher_detection=True,
+                    )
+                    for k in keys
+                ]
             deadline = time.monotonic() + 30
-            while not all(p.matching_status.matching for p in pubs):  # type: ignore[attr-defined]
+            while not all(p.matching_status.matching for p in plain):  # type: ignore[attr-defined]
                 if time.monotonic() > deadline:
                     raise RuntimeError("no subscriber matched the detection keys within 30 s")
                 time.sleep(0.02)

@@ -71,6 +71,7 @@ class ServiceBenchOptions:
     profile_dir: Path | None
     p99_limit_ms: float = P99_LIMIT_MS
     drain_s: float = 5.0
+    subscribe: str = "wide"  # the members' subscribe setting
 
 
 # ----------------------------------------------------------------------------- processes
@@ -159,6 +160,7 @@ def launch_tracker(
         **os.environ,
         "NO_COLOR": "1",
         "SIMPLETRACK_QUEUE_SIZE": str(opts.queue_size),
+        "SIMPLETRACK_SUBSCRIBE": opts.subscribe,
         "SIMPLETRACK_IGNORE_CLASSES": json.dumps(loadgen.UNTRACKED),
     }
     with open(log, "wb") as out:
@@ -372,6 +374,7 @@ def load_spec(
         source=opts.source,
         data=str(opts.data),
         synthetic_boxes=opts.synthetic_boxes,
+        advanced=opts.subscribe == "owned",
     )
 
 

@@ -257,6 +257,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     scale.add_argument("--rate", type=float, default=10.0, help="frames/s per sensor (default 10)")
     scale.add_argument(
+        "--subscribe",
+        choices=("wide", "owned"),
+        default="wide",
+        help="the members' subscribe setting (owned: the load generator publishes with "
+        "advanced publishers, whose tokens the members find sensors by)",
+    )
+    scale.add_argument(
         "--workers", type=int, default=2, help="worker threads per member (default 2)"
     )
     scale.add_argument(
@@ -519,6 +526,7 @@ def run_scale(args: argparse.Namespace) -> int:
         echo=False,
         profile_dir=None,
         p99_limit_ms=args.p99_limit,
+        subscribe=args.subscribe,
     )
     opts = ScaleOptions(instances, bench_opts, args.fault_sensors)
     before = machine()
@@ -529,7 +537,7 @@ def run_scale(args: argparse.Namespace) -> int:
     doc = {
         "benchmark": "scale",
         "command": "simpletrack " + " ".join(sys.argv[1:]),
-        "note": "before the group protocol every member tracks every sensor it hears",
+        "note": "members of one group: each sensor tracked by one member (docs/SCALE.md)",
         "options": {
             k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items() if k != "func"
         }
