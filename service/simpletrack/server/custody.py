@@ -33,7 +33,6 @@ log = get_logger("group")
 # taken back for this long: the views agree well within it.
 RELEASE_GUARD_S = 2.0
 RELEASED_KEPT_S = 60.0
-HANDOFF_TRIES = 3  # asks of a sensor whose holder was busy
 _SNAP_LIMITS = DecodeLimits(max_bytes=1 << 30, max_boxes=1 << 30)
 
 
@@ -146,7 +145,7 @@ class Custody:
         key = f"{vehicle}/{sensor}"
         self.settled.add(key)
         self.released.pop(key, None)
-        checkpoint, frames, _ = self.standby.take(key)
+        checkpoint, frames = self.standby.take(key)
         snap, source = None, "new"
         if replies:
             snap, source = max(replies, key=lambda s: s.written_ns), "handoff"
@@ -250,18 +249,17 @@ class Custody:
         self,
         vehicle: str,
         sensor: str,
-        on_done: Callable[[list[SensorSnapshot], bool], None],
+        on_done: Callable[[list[SensorSnapshot]], None],
     ) -> None:
         """Ask every other member to release the sensor; the holder answers its state.
-        ``on_done(states, busy)`` runs on a Zenoh thread once every member answered (or
-        ``handoff_timeout_s``); ``busy``: a member could not answer now, ask again."""
+        ``on_done(states)`` runs on a Zenoh thread once every member answered (or
+        ``handoff_timeout_s``)."""
         sh = self.shared
         found: list[SensorSnapshot] = []
-        busy = [False]
 
         def on_reply(reply: zenoh.Reply) -> None:
-            if reply.ok is None:
-                busy[0] = True
+            if reply.ok is None:  # members answer nothing or a state, never an error
+                log.warning("handoff_error_reply", vehicle=vehicle, sensor=sensor)
                 return
             snap = decode_message(reply.ok.payload.to_bytes(), SensorSnapshot, _SNAP_LIMITS)
             if isinstance(snap, Rejection):
@@ -272,14 +270,14 @@ class Custody:
         try:
             sh.session.get(
                 zenoh.Selector(sh.keys.handoff("*", vehicle, sensor), f"from={sh.instance}"),
-                zenoh.handlers.Callback(on_reply, lambda: on_done(found, busy[0])),
+                zenoh.handlers.Callback(on_reply, lambda: on_done(found)),
                 target=zenoh.QueryTarget.ALL,
                 consolidation=zenoh.ConsolidationMode.NONE,
                 timeout=sh.handoff_timeout_s,
             )
         except zenoh.ZError as e:
             log.warning("handoff_ask_failed", vehicle=vehicle, sensor=sensor, error=str(e))
-            on_done([], False)
+            on_done([])
 
     # ------------------------------------------------------------------ giving away
     def release(self, vehicle: str, sensor: str, to: str) -> SensorSnapshot | None:

@@ -2,7 +2,8 @@
 frames heard since it, so that taking a sensor over is restore, then replay.
 
 Bounded: at most ``max_frames`` frames per sensor (the oldest go first; a takeover then
-finds a gap, which it counts and announces), trimmed to the frames after each checkpoint.
+finds the gap and fills it from the vehicle's cache, or announces it), trimmed to the frames
+after each checkpoint.
 Only the worker's thread uses it.
 """
 
@@ -22,7 +23,6 @@ MAX_STANDBY_SENSORS = 100_000
 class _Held:
     checkpoint: SensorSnapshot | None = None
     frames: deque[tuple[int | None, Inbound]] = field(default_factory=deque)  # (stamp, frame)
-    dropped: int = 0  # frames pushed out by the bound since the checkpoint
 
 
 class Standby:
@@ -48,8 +48,7 @@ class Standby:
         _, stamp = peek_header(item.payload)
         held.frames.append((stamp, item))
         if len(held.frames) > self.max_frames:
-            held.frames.popleft()
-            held.dropped += 1
+            held.frames.popleft()  # a takeover finds the gap and asks the vehicle's cache
 
     def checkpoint(self, sensor: str, snap: SensorSnapshot) -> None:
         """The owner's state: frames it covers are no longer needed."""
@@ -64,15 +63,14 @@ class Standby:
         if last is not None:
             while held.frames and (held.frames[0][0] or 0) <= last:
                 held.frames.popleft()
-            held.dropped = 0
 
-    def take(self, sensor: str) -> tuple[SensorSnapshot | None, list[Inbound], int]:
-        """Everything kept of ``sensor`` (forgotten here): checkpoint, frames in arrival
-        order, and how many frames the bound pushed out since the checkpoint."""
+    def take(self, sensor: str) -> tuple[SensorSnapshot | None, list[Inbound]]:
+        """Everything kept of ``sensor`` (forgotten here): checkpoint and frames in
+        arrival order."""
         held = self._held.pop(sensor, None)
         if held is None:
-            return None, [], 0
-        return held.checkpoint, [item for _, item in held.frames], held.dropped
+            return None, []
+        return held.checkpoint, [item for _, item in held.frames]
 
     def forget(self, sensor: str) -> None:
         self._held.pop(sensor, None)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import zenoh
 
 from simpletrack.core.tracker import Tracker
-from simpletrack.server.custody import HANDOFF_TRIES, Custody, Shared, Takeover
+from simpletrack.server.custody import Custody, Shared, Takeover
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.group import Role
 from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue
@@ -191,33 +191,26 @@ class Worker(threading.Thread):
             if key not in self.custody.settled and self.sensors.get(key) is None:
                 self._pending[key] = deque([item])
                 if self.custody.needs_asking():
-                    self._ask(vehicle, sensor, tries=1)
+                    self._ask(vehicle, sensor)
                 else:
-                    self._answered(vehicle, sensor, [], False, HANDOFF_TRIES)
+                    self._answered(vehicle, sensor, [])
                 return
             if key in self._limits and self._after_takeover(key, item):
                 return
         self._track(item)
 
-    def _ask(self, vehicle: str, sensor: str, tries: int) -> None:
+    def _ask(self, vehicle: str, sensor: str) -> None:
         """Ask the group for a sensor without waiting: its frames wait in ``_pending`` and
         the answers come back through the queue's control lane."""
 
-        def done(answers: list[SensorSnapshot], busy: bool) -> None:
-            self.queue.put_control(
-                lambda: self._answered(vehicle, sensor, answers, busy, tries), force=True
-            )
+        def done(answers: list[SensorSnapshot]) -> None:
+            self.queue.put_control(lambda: self._answered(vehicle, sensor, answers), force=True)
 
         self.custody.ask(vehicle, sensor, done)
 
-    def _answered(
-        self, vehicle: str, sensor: str, answers: list[SensorSnapshot], busy: bool, tries: int
-    ) -> None:
+    def _answered(self, vehicle: str, sensor: str, answers: list[SensorSnapshot]) -> None:
         """The group answered: restore; when the standby's frames leave a gap after the
         state, ask the vehicle's cache for it before replaying (frames keep waiting)."""
-        if busy and not answers and tries < HANDOFF_TRIES:
-            self._ask(vehicle, sensor, tries + 1)
-            return
         key = f"{vehicle}/{sensor}"
         t = self.custody.take_over(vehicle, sensor, answers, self._pending.get(key, ()))
         if not t.needs_cache:
