@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from simpletrack.server.group import Membership, Role
-from simpletrack.server.intake import Inbound
+from simpletrack.server.intake import Inbound, stamp_of
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import MSGPACK, Outbox
@@ -47,18 +47,26 @@ class Released:
 class Takeover:
     """How a sensor came to this member: ``state`` None means a sensor nobody held."""
 
-    state: SensorState | None
+    vehicle: str
+    sensor: str
     source: str  # "handoff", "failover", "restore", "lost" or "new"
+    snapshot: SensorSnapshot | None  # the state taken over
+    heard: Heard | None  # the last tracks planners got, from any member
+    state: SensorState | None = None
     replay: list[Inbound] = field(default_factory=list)
-    covered_stamp_ns: int | None = None  # frames up to it are in the state already
-    published_stamp_ns: int | None = None  # planners have tracks up to it
     missed: int = 0  # frames after the state that neither the standby nor the vehicle kept
     from_cache: int = 0  # frames replayed from the vehicle's cache
-    vehicle: str = ""
-    sensor: str = ""
-    snapshot: SensorSnapshot | None = None
-    heard: Heard | None = None
     done: bool = False
+
+    @property
+    def covered_stamp_ns(self) -> int | None:
+        """Frames up to it are in the state already."""
+        return None if self.snapshot is None else self.snapshot.last_stamp_ns
+
+    @property
+    def published_stamp_ns(self) -> int | None:
+        """Planners have tracks up to it."""
+        return None if self.heard is None else self.heard.stamp_ns
 
     @property
     def needs_cache(self) -> bool:
@@ -163,11 +171,9 @@ class Custody:
             # their ids above every one heard.
             source = "lost"
             self.registry.retired[key] = max(self.registry.retired.get(key, 0), heard.next_id)
-        t = Takeover(None, source, published_stamp_ns=None if heard is None else heard.stamp_ns)
-        t.vehicle, t.sensor, t.snapshot, t.heard = vehicle, sensor, snap, heard
+        t = Takeover(vehicle, sensor, source, snap, heard)
         if snap is not None:
             t.state = self.registry.adopt(snap, use_floor=source == "restore")
-            t.covered_stamp_ns = snap.last_stamp_ns
         t.replay = [f for f in frames if _after(f, t.covered_stamp_ns)]
         if source in ("failover", "handoff") and snap is not None:
             t.missed = _holes(snap.last_seq, [*t.replay, *waiting])
@@ -177,10 +183,10 @@ class Custody:
         """Add the frames the vehicle's cache gave (those after the state the standby did
         not keep), count what is still missing, and account for the takeover."""
         if cached:
-            have = {_stamp(f) for f in [*t.replay, *waiting]}
-            extra = [f for f in cached if _after(f, t.covered_stamp_ns) and _stamp(f) not in have]
+            have = {stamp_of(f) for f in [*t.replay, *waiting]}
+            extra = [f for f in cached if _after(f, t.covered_stamp_ns) and stamp_of(f) not in have]
             t.from_cache = len(extra)
-            t.replay = sorted(t.replay + extra, key=lambda f: _stamp(f) or 0)
+            t.replay += extra  # put in order with the waiting frames by the worker
             if t.snapshot is not None:
                 t.missed = _holes(t.snapshot.last_seq, [*t.replay, *waiting])
         m = self.shared.metrics
@@ -321,14 +327,9 @@ class Custody:
             if standby is None:
                 continue
             mark = (standby, s.frames)
-            if not final and (
-                s.checkpoint_mark == mark
-                or (
-                    new_standby_only
-                    and s.checkpoint_mark is not None
-                    and s.checkpoint_mark[0] == standby
-                )
-            ):
+            last = s.checkpoint_mark
+            first = last is None or last[0] != standby  # this standby has no state of it
+            if not (final or first or (last != mark and not new_standby_only)):
                 continue
             snap = s.snapshot(self.registry.digest)
             try:
@@ -359,12 +360,8 @@ class Custody:
 def _after(item: Inbound, stamp_ns: int | None) -> bool:
     if stamp_ns is None:
         return True
-    _, stamp = peek_header(item.payload)
+    stamp = stamp_of(item)
     return stamp is None or stamp > stamp_ns
-
-
-def _stamp(item: Inbound) -> int | None:
-    return peek_header(item.payload)[1]
 
 
 def _holes(last_seq: int | None, replay: list[Inbound], limit: int = 100_000) -> int:

@@ -48,6 +48,11 @@ class Inbound:
     kind: Kind = Kind.DETECTIONS
 
 
+def stamp_of(item: Inbound) -> int | None:
+    """The frame's ``stamp_ns`` from its header alone (None: unreadable)."""
+    return peek_header(item.payload)[1]
+
+
 @dataclass(slots=True)
 class Dropped:
     """Frames of one key the queue had to give up, announced by the worker in one notice."""
@@ -283,5 +288,6 @@ __all__ = [
     "Kind",
     "WorkQueue",
     "depth",
+    "stamp_of",
     "worker_index",
 ]

@@ -12,8 +12,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from simpletrack.server.intake import Inbound
-from simpletrack.wire.header import peek_header
+from simpletrack.server.intake import Inbound, stamp_of
 from simpletrack.wire.models import SensorSnapshot
 
 MAX_STANDBY_SENSORS = 100_000
@@ -45,8 +44,7 @@ class Standby:
         held = self._get(sensor)
         if held is None:
             return
-        _, stamp = peek_header(item.payload)
-        held.frames.append((stamp, item))
+        held.frames.append((stamp_of(item), item))
         if len(held.frames) > self.max_frames:
             held.frames.popleft()  # a takeover finds the gap and asks the vehicle's cache
 

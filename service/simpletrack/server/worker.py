@@ -18,7 +18,7 @@ from simpletrack.core.tracker import Tracker
 from simpletrack.server.custody import Custody, Shared, Takeover
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.group import Role
-from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue
+from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue, stamp_of
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import Outbox, congestion_control, dropped, missed_notice
@@ -43,7 +43,6 @@ from simpletrack.wire.codec import (
 )
 from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
-from simpletrack.wire.header import peek_header
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
 from simpletrack.wire.reasons import ErrorReason
@@ -243,9 +242,12 @@ class Worker(threading.Thread):
         if t.missed:
             self._announce_missed(t.vehicle, t.sensor, t.missed)
         # Kept, cached and waiting frames overlap and interleave: one of each, in order.
+        stamped = sorted(
+            ((stamp_of(f), f) for f in [*t.replay, *self._pending.pop(key, ())]),
+            key=lambda sf: sf[0] or 0,
+        )
         frames, stamps = [], set()
-        for f in sorted([*t.replay, *self._pending.pop(key, ())], key=lambda f: _stamp(f) or 0):
-            stamp = _stamp(f)
+        for stamp, f in stamped:
             if stamp is None or stamp not in stamps:
                 stamps.add(stamp)
                 frames.append(f)
@@ -253,11 +255,11 @@ class Worker(threading.Thread):
         for f in frames:
             if not (key in self._limits and self._after_takeover(key, f)):
                 self._track(f)
-        if stamps - {None}:
+        top = max((st for st in stamps if st is not None), default=None)
+        if top is not None:
             # A frame both cached and still on its way is in the state now: skip it then.
             covered, published = self._limits.get(key, (None, t.published_stamp_ns))
-            top = max(st for st in stamps if st is not None)
-            self._limits[key] = (max(covered or top, top), published)
+            self._limits[key] = (top if covered is None else max(covered, top), published)
         if t.replay:
             self.ctx.metrics.replayed.inc(len(t.replay))
 
@@ -265,7 +267,7 @@ class Worker(threading.Thread):
         """A frame the state taken over already holds is skipped; one planners already have
         from the member before is tracked without publishing. True: done with it."""
         covered, published = self._limits[key]
-        _, stamp = peek_header(item.payload)
+        stamp = stamp_of(item)
         if stamp is None:
             return False
         if covered is not None and stamp <= covered:
@@ -514,7 +516,3 @@ class Worker(threading.Thread):
             return
         state = self.sensors.get(f"{vehicle}/{sensor}")
         self._refuse(item, vehicle, sensor, state, dropped(reason, item.payload), counted)
-
-
-def _stamp(item: Inbound) -> int | None:
-    return peek_header(item.payload)[1]
