@@ -23,7 +23,7 @@ from zenoh import ext
 
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.custody import Heard, Shared
-from simpletrack.server.group import Membership, Role
+from simpletrack.server.group import Membership, Role, undeclare
 from simpletrack.server.intake import Inbound, Intake, Kind, WorkQueue, depth, worker_index
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
@@ -142,15 +142,11 @@ class Service:
         if s.state_dir is not None:
             # Id reservations first: a sensor whose snapshot is damaged still has one.
             for vehicle, sensor, floor in read_all_ids(s.state_dir):
-                key = self.keys.detections(vehicle, sensor)
-                self._workers[worker_index(key, s.workers)].sensors.restore_floor(
-                    vehicle, sensor, floor
-                )
+                self._worker_of(vehicle, sensor).sensors.restore_floor(vehicle, sensor, floor)
             alone = len(self.membership.members) == 1
             for snap in read_all(s.state_dir):
                 if alone:
-                    key = self.keys.detections(snap.vehicle, snap.sensor)
-                    self._workers[worker_index(key, s.workers)].sensors.adopt(snap)
+                    self._worker_of(snap.vehicle, snap.sensor).sensors.adopt(snap)
                 else:  # another member may hold it, fresher: used only if none does
                     shared.local[f"{snap.vehicle}/{snap.sensor}"] = snap
         self._metrics_functions()
@@ -268,6 +264,11 @@ class Service:
         # see the outage.
         return not self._client or self._routers_connected() > 0
 
+    def _worker_of(self, vehicle: str, sensor: str) -> Worker:
+        """The worker a sensor's frames go to (the intake's routing)."""
+        key = self.keys.detections(vehicle, sensor)
+        return self._workers[worker_index(key, len(self._workers))]
+
     # ------------------------------------------------------------------ the group
     def _standby_count(self) -> int:
         return sum(len(w.custody.standby) for w in self._workers)
@@ -295,6 +296,8 @@ class Service:
         sensor = f"{names[0]}/{names[1]}"
         if self.membership.role(sensor) is Role.NONE:
             return
+        if self._worker_of(*names).sensors.get(sensor) is not None:
+            return  # held here: these are this member's own tracks, nothing to learn
         out = decode_track_frame(sample.payload.to_bytes())
         if isinstance(out, Rejection):
             return
@@ -329,9 +332,7 @@ class Service:
             query.drop()  # type: ignore[no-untyped-call]
             return
         vehicle, sensor = names
-        worker = self._workers[
-            worker_index(self.keys.detections(vehicle, sensor), len(self._workers))
-        ]
+        worker = self._worker_of(vehicle, sensor)
         reply_key = self.keys.handoff(self.settings.instance, vehicle, sensor)
 
         key = f"{vehicle}/{sensor}"
@@ -421,8 +422,7 @@ class Service:
         parts = str(query.key_expr).split("/")
         vehicle, sensor = parts[-2], parts[-1]
         if NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor):
-            index = worker_index(self.keys.detections(vehicle, sensor), len(self._workers))
-            targets = [self._workers[index]]
+            targets = [self._worker_of(vehicle, sensor)]
         else:
             targets = list(self._workers)
         pending = [len(targets)]
@@ -474,7 +474,7 @@ class Service:
         self._ready = False
         log.info("service_stopping", instance=s.instance)
         if self._subscriber is not None:
-            self._undeclare(*self._subscriber)
+            undeclare(*self._subscriber)
             self._subscriber = None
         if self._owned is not None:
             self._owned.close()
@@ -490,13 +490,13 @@ class Service:
             else:  # it publishes no more: its unused reserved ids can go back
                 w.sensors.release_ids()
         if self._token is not None:
-            self._undeclare(self._token)
+            undeclare(self._token)
             self._token = None
         self._await_handoffs()
         if self._handoff_queryable is not None:
-            self._undeclare(self._handoff_queryable)
+            undeclare(self._handoff_queryable)
             self._handoff_queryable = None
-        self._undeclare(*self._declared)
+        undeclare(*self._declared)
         self._declared.clear()
         self.membership.close()
         if self._writer is not None and not self._writer.close(timeout=s.shutdown_timeout_s):
@@ -521,14 +521,6 @@ class Service:
             time.sleep(0.02)
             held = sum(len(w.sensors) for w in self._workers)
         log.info("handoffs_done" if not held else "handoffs_timed_out", left_with_standby=held)
-
-    @staticmethod
-    def _undeclare(*entities: Any) -> None:
-        for entity in entities:
-            try:
-                entity.undeclare()
-            except (zenoh.ZError, RuntimeError) as e:
-                log.warning("undeclare_failed", error=str(e))
 
 
 def run(settings: ServiceSettings) -> int:

@@ -21,6 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from enum import Enum
+from typing import Any
 
 import zenoh
 
@@ -74,9 +75,6 @@ class Membership:
         self._router_back_at: float | None = None
         self._sub: zenoh.Subscriber[None] | None = None
         self._stop = threading.Event()
-        self._ticker: threading.Thread | None = None
-        self.changes = 0
-        self.changed_at = time.monotonic()
         self.declared = False  # this instance's own token is out (set by the service)
         self.twin = False
 
@@ -106,9 +104,9 @@ class Membership:
     def owner(self, sensor: str) -> str:
         return ranking(self._members, sensor)[0] if self.enabled else self.me
 
-    def standby(self, sensor: str, members: frozenset[str] | None = None) -> str | None:
+    def standby(self, sensor: str) -> str | None:
         """The member that would take ``sensor`` over if its owner went (None: alone)."""
-        order = ranking(self._members if members is None else members, sensor)
+        order = ranking(self._members, sensor)
         return order[1] if self.enabled and len(order) > 1 else None
 
     # ------------------------------------------------------------------ the token stream
@@ -119,8 +117,7 @@ class Membership:
             self.keys.liveliness("*"), self._on_token, history=True
         )
         if self._routers is not None:
-            self._ticker = threading.Thread(target=self._tick, name="group", daemon=True)
-            self._ticker.start()
+            threading.Thread(target=self._tick, name="group", daemon=True).start()
 
     def _member_of(self, key: str) -> str | None:
         parts = key.split("/")
@@ -173,8 +170,6 @@ class Membership:
                 return
             self._members = members
             self._roles = {}
-            self.changes += 1
-            self.changed_at = time.monotonic()
         log.info(
             "group_changed",
             members=",".join(sorted(members)),
@@ -187,11 +182,18 @@ class Membership:
     def close(self) -> None:
         self._stop.set()
         if self._sub is not None:
-            try:
-                self._sub.undeclare()  # type: ignore[no-untyped-call]
-            except (zenoh.ZError, RuntimeError) as e:
-                log.warning("undeclare_failed", error=str(e))
+            undeclare(self._sub)
             self._sub = None
 
 
-__all__ = ["Membership", "Role", "ranking", "weight"]
+def undeclare(*entities: Any) -> None:
+    """Undeclare Zenoh entities in order, logging (never raising) what fails: the session
+    may be closing, or a receiver still borrowing one."""
+    for entity in entities:
+        try:
+            entity.undeclare()
+        except (zenoh.ZError, RuntimeError) as e:
+            log.warning("undeclare_failed", error=str(e))
+
+
+__all__ = ["Membership", "Role", "ranking", "undeclare", "weight"]

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from enum import Enum
 from pathlib import Path
 
 from simpletrack.core.tracker import Tracker
@@ -36,6 +37,14 @@ from simpletrack.wire.models import SensorSnapshot, SensorStatus
 
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
 MAX_RETIRED = 100_000  # id reservations of evicted sensors kept in memory
+
+
+class Departure(Enum):
+    """Why a sensor leaves the registry; the value is its log event."""
+
+    EVICTED = "sensor_evicted"  # silent for over sensor_idle_s
+    RECLAIMED = "sensor_reclaimed"  # silent for over reset_gap_s while the slots are full
+    RELEASED = "sensor_released"  # handed to another member of the group
 
 
 class SensorRegistry:
@@ -154,7 +163,7 @@ class SensorRegistry:
         this member took them, stay retired: a fresh start here continues above them)."""
         s = self.sensors.get(key)
         if s is not None:
-            self._evict(key, s, handed_off=True)
+            self._evict(key, s, Departure.RELEASED)
 
     # ------------------------------------------------------------------ id reservations
     def reserve_ids(self, s: SensorState) -> None:
@@ -207,7 +216,8 @@ class SensorRegistry:
         limit = min(idle_s, self.reclaim_after_s) if full else idle_s
         gone = [(k, s) for k, s in list(self.sensors.items()) if now - s.last_seen > limit]
         for key, s in gone:
-            self._evict(key, s, reclaimed=now - s.last_seen <= idle_s)
+            quiet_only = now - s.last_seen <= idle_s  # gone early because slots are full
+            self._evict(key, s, Departure.RECLAIMED if quiet_only else Departure.EVICTED)
         return [s for _, s in gone]
 
     def _reclaim_one(self) -> bool:
@@ -218,29 +228,25 @@ class SensorRegistry:
         key, s = min(self.sensors.items(), key=lambda kv: kv[1].last_seen)
         if now - s.last_seen <= self.reclaim_after_s:
             return False
-        self._evict(key, s, reclaimed=True)
+        self._evict(key, s, Departure.RECLAIMED)
         self.reclaimed_now.append(s)
         return True
 
-    def _evict(
-        self, key: str, s: SensorState, reclaimed: bool = False, handed_off: bool = False
-    ) -> None:
+    def _evict(self, key: str, s: SensorState, why: Departure) -> None:
         del self.sensors[key]
         self.retired[key] = s.id_next
         while len(self.retired) > MAX_RETIRED:
             del self.retired[next(iter(self.retired))]
         self.budget.release()
         m = self.metrics
-        if not handed_off:
-            (m.reclaimed if reclaimed else m.evicted).inc()
+        if why is Departure.EVICTED:
+            m.evicted.inc()
+        elif why is Departure.RECLAIMED:
+            m.reclaimed.inc()
         m.active_sensors.dec()
         m.active_tracks.dec(s.active_tracks)
-        if handed_off:
-            event = "sensor_released"
-        else:
-            event = "sensor_reclaimed" if reclaimed else "sensor_evicted"
         log.info(
-            event,
+            why.value,
             vehicle=s.vehicle,
             sensor=s.sensor,
             seq=s.last_seq,

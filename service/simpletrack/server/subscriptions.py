@@ -20,7 +20,7 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
-from simpletrack.server.group import Membership, Role
+from simpletrack.server.group import Membership, Role, undeclare
 from simpletrack.server.logs import get_logger
 from simpletrack.wire.keys import DETECTIONS, Keys
 
@@ -106,7 +106,7 @@ class Subscriptions:
     def _reconcile(self) -> None:
         wanted = self._wanted()
         for sensor in [s for s in self._subs if s not in wanted]:
-            self._undeclare(*self._subs.pop(sensor))
+            undeclare(*self._subs.pop(sensor))
         for sensor in sorted(wanted - set(self._subs)):
             vehicle, name = sensor.split("/")
             sub = ext.declare_advanced_subscriber(
@@ -118,14 +118,6 @@ class Subscriptions:
             )
             self._subs[sensor] = (sub.sample_miss_listener(self._on_miss), sub)
 
-    @staticmethod
-    def _undeclare(*entities: Any) -> None:
-        for e in entities:
-            try:
-                e.undeclare()
-            except (zenoh.ZError, RuntimeError) as err:
-                log.warning("undeclare_failed", error=str(err))
-
     def close(self) -> None:
         """Stop and undeclare everything (first thing at shutdown: no new frames)."""
         self._stop.set()
@@ -133,10 +125,10 @@ class Subscriptions:
         if self._thread.is_alive():
             self._thread.join(5)
         if self._token_sub is not None:
-            self._undeclare(self._token_sub)
+            undeclare(self._token_sub)
             self._token_sub = None
         for pair in self._subs.values():
-            self._undeclare(*pair)
+            undeclare(*pair)
         self._subs.clear()
 
 
