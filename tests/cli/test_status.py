@@ -27,6 +27,16 @@ def test_status_lists_the_members_and_splits_the_sensors_between_them(tmp_path: 
         group.add("m-b")
         cli = Client(group.endpoints()[0])
         try:
+            # Peers route nothing for each other: the vehicle reaches m-b once gossip has
+            # connected it there, and a frame of m-b's sent before that reaches nobody.
+            wait_for(
+                lambda: (
+                    sum(1 for r in cli.session.liveliness().get("fleet/@simpletrack/*") if r.ok)
+                    == 2
+                ),
+                20,
+                "both members reachable",
+            )
             for k in range(3):
                 for v in SENSORS:
                     cli.send(v, "lidar", k, stamp(k), moving_cars(k))
