@@ -160,9 +160,51 @@ def _wait(pred: Callable[[], bool], timeout_s: float, what: str) -> None:
 
 def free_port() -> int:
     """A TCP port free on 127.0.0.1 right now."""
+    return free_run(1)
+
+
+def free_run(n: int) -> int:
+    """A port p such that p .. p+n-1 are free on 127.0.0.1 right now.
+
+    The ports come from below the kernel's ephemeral range: a port the kernel handed out
+    (bind to 0) and we released can be taken again as the source port of any outgoing
+    connection before our listener binds it (a CI run failed with "Address already in use"
+    that way). Each process starts at its own offset and never hands a port out twice."""
+    lo, span = _PORT_POOL
+    for _ in range(span):
+        with _PORT_LOCK:
+            offset = _port_cursor[0] % (span - n)
+            _port_cursor[0] = offset + n
+        base = lo + offset
+        if all(_bindable(p) for p in range(base, base + n)):
+            return base
+    raise RuntimeError(f"no {n} consecutive free ports in {lo}..{lo + span - 1}")
+
+
+def _bindable(port: int) -> bool:
     with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _port_pool() -> tuple[int, int]:
+    """(first port, count) of the ports below the ephemeral range, from 10000."""
+    try:
+        text = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text()
+        ephemeral_lo = int(text.split()[0])
+    except (OSError, ValueError, IndexError):
+        ephemeral_lo = 32768
+    if ephemeral_lo - 10000 < 1000:  # an unusual range: take the ports above it instead
+        return 61000, 4000
+    return 10000, ephemeral_lo - 10000
+
+
+_PORT_POOL = _port_pool()
+_PORT_LOCK = threading.Lock()
+_port_cursor = [(os.getpid() * 7919) % _PORT_POOL[1]]  # each process starts elsewhere
 
 
 def serve_command(endpoint: str, metrics_port: int, instance: str, *extra: str) -> list[str]:

@@ -34,16 +34,25 @@ def test_fault_figures_time_the_victim_s_sensors_and_count_frames_around_the_fau
         (2, 1, "m1", FAULT - 80 * MS),
         (2, 1, "m1", FAULT + 5 * MS),  # a late duplicate from the victim itself
     ]
+    # Sensor 3: the victim's last frame published again by the member that took it over.
+    sent.append([FAULT - 3000 * MS, FAULT - 100 * MS, FAULT + 20 * MS])
+    answers += [
+        (3, 0, "m0", FAULT - 2990 * MS),
+        (3, 1, "m1", FAULT - 90 * MS),
+        (3, 1, "m0", FAULT + 50 * MS),
+        (3, 2, "m0", FAULT + 60 * MS),
+    ]
     f = fault_figures(answers, sent, FAULT, "m1")
-    assert f["sensors_served_by_victim"] == 2
-    assert f["max_ms"] == 40.0 and f["median_ms"] == 40.0
+    assert f["sensors_served_by_victim"] == 3
+    assert f["max_ms"] == 50.0 and f["median_ms"] == 45.0
     assert f["not_recovered"] == 1
     # Frames put from 1 s before the fault on: seq 1 and 2 of each sensor.
-    assert f["window_frames"] == 6
+    assert f["window_frames"] == 8
     assert f["zero_answers"] == 1  # sensor 2, seq 2
+    assert f["republished"] == 1  # sensor 3, seq 1
     assert f["multiple_answers"] == 1  # sensor 2, seq 1
-    # Before the window: seq 0 of each sensor, answered 2, 1 and 1 times.
-    assert f["answers_per_frame_before"] == pytest.approx(4 / 3, abs=0.01)
+    # Before the window: seq 0 of each sensor, answered 2, 1, 1 and 1 times.
+    assert f["answers_per_frame_before"] == pytest.approx(5 / 4, abs=0.01)
 
 
 def test_warm_up_frames_and_unsent_frames_are_not_counted() -> None:

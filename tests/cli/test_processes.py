@@ -28,6 +28,7 @@ from simpletrack.cli.processes import (
     passed_on,
 )
 from simpletrack.cli.serve import settings_from_args
+from simpletrack.spawn import free_run
 from simpletrack.wire import Rejection, ServiceStatus, decode_message
 from tests.service_helpers import (
     ROOT,
@@ -40,27 +41,6 @@ from tests.service_helpers import (
 )
 
 INSTANCE = "grp"
-
-
-def free_run(n: int) -> int:
-    """A port p such that p .. p+n-1 are free on 127.0.0.1 right now."""
-    for _ in range(50):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            base = int(s.getsockname()[1])
-        if base + n > 65535:
-            continue
-        ok = True
-        for p in range(base, base + n):
-            with socket.socket() as s:
-                try:
-                    s.bind(("127.0.0.1", p))
-                except OSError:
-                    ok = False
-                    break
-        if ok:
-            return base
-    raise AssertionError(f"no {n} consecutive free ports")
 
 
 class Group:

@@ -1,19 +1,24 @@
 """Three members share 30 sensors replaying KITTI at 10 Hz. One is killed with SIGKILL
 mid-stream, then a new one joins, then one is stopped with SIGTERM and started again under
-its name and state directory (a rolling update): every detection frame gets exactly one
-tracks message, and the tracks (ids and boxes) are those one uninterrupted
-tracker gives on the same frames, frame for frame. Peer to peer, through a router process
+its name and state directory (a rolling update): a planner's TrackSubscriber gets exactly
+one tracks message per detection frame (on the wire, the killed member's last frame may come
+twice: the member that took it over publishes it again, in case the kill cut its put short),
+and the tracks (ids and boxes) are those one uninterrupted tracker gives on the same frames,
+frame for frame. Peer to peer, through a router process
 with the members its clients, and with per-sensor subscriptions (each member hears only the
 sensors it owns or stands by for)."""
 
 from __future__ import annotations
 
 import signal
+import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
 
+from simpletrack.client import TrackMessage, TrackSubscriber
 from tests.faults.router_process import new_router
 from tests.scale.fleet import (
     PERIOD_S,
@@ -48,6 +53,14 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
         with planner_session(group) as session:
             planner = Planner()
             sub = session.declare_subscriber("fleet/*/*/tracks", planner.on_tracks)
+            delivered: Counter[tuple[str, int]] = Counter()
+            lock = threading.Lock()
+
+            def deliver(m: TrackMessage) -> None:
+                with lock:
+                    delivered[f"{m.vehicle}/{m.sensor}", m.seq] += 1
+
+            track_sub = TrackSubscriber(session, callback=deliver)
             fleet = Fleet(session, frames)
             assert fleet.wait_for_service(10)
             wait_for(lambda: all(len(m.metrics()) > 0 for m in group.members.values()), 10)
@@ -69,9 +82,14 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
                 time.sleep(0.05)
             time.sleep(0.5)  # a duplicate would come now
             sub.undeclare()
-            counts, unequal = mismatches(planner, frames, n)
+            track_sub.close()
+            counts, unequal, repeats = mismatches(planner, frames, n)
             assert not counts, (len(counts), counts[:5], counts[-5:], fleet.sent)
             assert not unequal, unequal[:20]
+            assert repeats <= SENSORS, repeats  # at most the killed member's last frames
+            assert track_sub.duplicates == repeats
+            not_once = [(k, c) for k, c in delivered.items() if c != 1]
+            assert not not_once and len(delivered) == SENSORS * n, (not_once[:5], len(delivered))
             survivors = list(group.members.values())
             failovers = sum(metric(m.metrics(), "simpletrack_failovers_total") for m in survivors)
             handoffs = sum(

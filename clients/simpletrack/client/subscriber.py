@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
@@ -130,6 +131,7 @@ class TrackSubscriber:
         self.invalid = 0  # payloads on a tracks key that did not decode
         self.duplicates = 0  # frames delivered before, not delivered again
         self._recent: dict[str, deque[tuple[int, int]]] = {}  # key -> last (seq, stamp)
+        self._recent_lock = threading.Lock()
         self.invalid_reasons: dict[str, int] = {}  # the same, by ErrorReason value
         self.last_rejection: Rejection | None = None
         self._on_invalid = on_invalid
@@ -164,15 +166,17 @@ class TrackSubscriber:
             return
         key = str(sample.key_expr)
         frame = decoded[0]
-        recent = self._recent.get(key)
-        if recent is None:
-            if len(self._recent) >= MAX_KEYS:
-                self._recent.clear()
-            recent = self._recent[key] = deque(maxlen=RECENT_FRAMES)
-        if (frame.seq, frame.stamp_ns) in recent:
-            self.duplicates += 1
-            return
-        recent.append((frame.seq, frame.stamp_ns))
+        # Samples of two members come on two links' threads: check and record as one step.
+        with self._recent_lock:
+            recent = self._recent.get(key)
+            if recent is None:
+                if len(self._recent) >= MAX_KEYS:
+                    self._recent.clear()
+                recent = self._recent[key] = deque(maxlen=RECENT_FRAMES)
+            if (frame.seq, frame.stamp_ns) in recent:
+                self.duplicates += 1
+                return
+            recent.append((frame.seq, frame.stamp_ns))
         msg = TrackMessage(key, frame, decoded[1], received)
         if self._callback is None:
             self._mailbox.put(msg)

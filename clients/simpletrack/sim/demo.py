@@ -13,7 +13,6 @@ import logging
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -38,6 +37,7 @@ from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_t
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.sim.demo_stats import FleetStats
 from simpletrack.sim.simulator import FleetSimulator, SensorFrame, SimConfig
+from simpletrack.spawn import free_port
 from simpletrack.wire import BoxArrays, FrameError, WireTrackState
 
 DEMO_PRESET = "wod"  # the simulator's classes: vehicle, pedestrian, cyclist
@@ -80,9 +80,7 @@ class DemoResult:
 
 
 def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    return f"tcp/127.0.0.1:{free_port()}"
 
 
 class _Service:

@@ -65,8 +65,13 @@ class Takeover:
 
     @property
     def published_stamp_ns(self) -> int | None:
-        """Planners have tracks up to it."""
-        return None if self.heard is None else self.heard.stamp_ns
+        """Planners have tracks up to it. The holder of a hand-off published all it heard; a
+        member killed mid-put may have written its last tracks to some links only (Zenoh
+        writes one link after another), so after a failover the last frame heard is
+        published again and ``TrackSubscriber`` drops the repeat where it arrived before."""
+        if self.heard is None:
+            return None
+        return self.heard.stamp_ns if self.source == "handoff" else self.heard.stamp_ns - 1
 
     @property
     def needs_cache(self) -> bool:
