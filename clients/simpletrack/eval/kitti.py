@@ -4,7 +4,9 @@ Rules: ../shared/spec/KITTI_EVAL.md. Per class, summed over sequences: one run w
 score threshold gives the recall points; one run per recall point gives sAMOTA, AMOTA and
 AMOTP; one more run at the best-MOTA threshold gives the other figures. Each run re-averages
 the previous run's per-track means box by box (the reference's in-place overwrite), which must
-be chained exactly to reproduce its sAMOTA.
+be chained exactly to reproduce its sAMOTA. HOTA (DetA, AssA, LocA) and IDF1 (IDP, IDR), which
+AB3DMOT's evaluator does not compute, are TrackEval's, on the final run's boxes
+(``simpletrack.eval.hota``, ``simpletrack.eval.identity``).
 
 Speed: the per-pair IoU3D is computed once (``kitti_eval_data``); a frame's Hungarian
 assignment depends only on which of its candidate tracker boxes survive the threshold, so it
@@ -21,6 +23,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
+from simpletrack.eval.hota import hota_figures, kitti_boxes
+from simpletrack.eval.identity import identity_counts
 from simpletrack.eval.kitti_data import Problem, build_problem
 
 F64 = npt.NDArray[np.float64]
@@ -32,7 +36,7 @@ NO_THRESHOLD = -10000.0
 _INFEASIBLE = 1e9
 METRIC_NAMES = (
     "sAMOTA", "AMOTA", "AMOTP", "MOTA", "MOTP", "IDS", "FRAG", "FP", "FN", "TP",
-    "Recall", "Precision", "MT", "ML",
+    "Recall", "Precision", "MT", "ML", "HOTA", "DetA", "AssA", "LocA", "IDF1", "IDP", "IDR",
 )  # fmt: skip
 
 
@@ -51,6 +55,8 @@ class RunCounts:
     n_traj: int  # trajectories not entirely ignored
     motp_sum: float
     tp_scores: F64
+    kept: Bool  # tracker boxes of tracks at or above the threshold
+    matched: I64  # the matched candidate pairs
 
     @property
     def mota(self) -> float:
@@ -153,6 +159,8 @@ class ClassEvaluation:
             n_traj=n_traj,
             motp_sum=float((1.0 - p.pair_cost[sel]).sum()),
             tp_scores=self.box_score[p.pair_trk[sel]],
+            kept=kept,
+            matched=sel,
         )
 
     def _trajectories(self, gt_trk: I64) -> tuple[int, int, int, int, int]:
@@ -235,6 +243,7 @@ def evaluate_problem(problem: Problem) -> dict[str, float]:
         if counts.mota > best_mota:
             best_mota, best_threshold = counts.mota, threshold
     final = ev.run(best_threshold)
+    boxes = kitti_boxes(problem, final.kept, final.matched)
     return {
         "sAMOTA": 100.0 * s_sum / RECALL_POINTS,
         "AMOTA": 100.0 * a_sum / RECALL_POINTS,
@@ -250,6 +259,8 @@ def evaluate_problem(problem: Problem) -> dict[str, float]:
         "Precision": _pct(final.tp, final.tp + final.fp),
         "MT": _pct(final.mt, final.n_traj),
         "ML": _pct(final.ml, final.n_traj),
+        **hota_figures(boxes),
+        **identity_counts(boxes).figures(),
     }
 
 

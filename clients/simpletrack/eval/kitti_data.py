@@ -1,5 +1,6 @@
 """Inputs of the KITTI 3D MOT evaluation: label and result files, filtered for one class,
-turned into flat arrays and the threshold-independent (ground truth, tracker) candidate pairs.
+turned into flat arrays and the threshold-independent (ground truth, tracker) candidate pairs,
+plus every overlapping pair (3D IoU > 0) for HOTA and IDF1 (``simpletrack.eval.hota``).
 
 Rules: ../shared/spec/KITTI_EVAL.md (AB3DMOT's evaluator run as ``3D 0.25``).
 """
@@ -115,6 +116,9 @@ class Problem:
     pair_trk: I64
     pair_cost: F64  # 1 - IoU3D
     segments: I64  # (S + 1,) bounds of each frame's run of pairs
+    touch_gt: I64  # every same-frame pair with IoU3D > 0, sorted by frame (HOTA's similarity)
+    touch_trk: I64
+    touch_iou: F64
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,7 +190,7 @@ def build_problem(labels_dir: Path, results_dir: Path, seqs: Sequence[str], cls:
         k: []
         for k in (
             "gt_frame", "gt_traj", "gt_ign", "trk_frame", "trk_track", "trk_ign", "trk_score",
-            "pair_gt", "pair_trk", "pair_cost",
+            "pair_gt", "pair_trk", "pair_cost", "touch_gt", "touch_trk", "touch_iou",
         )
     }  # fmt: skip
     frame_base = n_gt = n_trk = n_traj = n_tracks = 0
@@ -208,8 +212,10 @@ def build_problem(labels_dir: Path, results_dir: Path, seqs: Sequence[str], cls:
         gi, ti = _same_frame_pairs(gt.frame, trk.frame)
         near = footprints_may_touch(gt.cam[gi], trk.cam[ti])
         gi, ti = gi[near], ti[near]
-        cost = 1.0 - iou3d_pairs(gt.cam[gi], trk.cam[ti])
+        iou = iou3d_pairs(gt.cam[gi], trk.cam[ti])
+        cost = 1.0 - iou
         ok = cost <= MAX_COST
+        touch = iou > 0.0
 
         parts["gt_frame"].append(gt.frame + frame_base)
         parts["gt_traj"].append(traj.reshape(-1) + n_traj)
@@ -221,6 +227,9 @@ def build_problem(labels_dir: Path, results_dir: Path, seqs: Sequence[str], cls:
         parts["pair_gt"].append(gi[ok] + n_gt)
         parts["pair_trk"].append(ti[ok] + n_trk)
         parts["pair_cost"].append(cost[ok])
+        parts["touch_gt"].append(gi[touch] + n_gt)
+        parts["touch_trk"].append(ti[touch] + n_trk)
+        parts["touch_iou"].append(iou[touch])
         frame_base += seq.n_frames
         n_gt += len(gt)
         n_trk += len(trk)
@@ -247,4 +256,7 @@ def build_problem(labels_dir: Path, results_dir: Path, seqs: Sequence[str], cls:
         pair_trk=cat["pair_trk"].astype(np.int64),
         pair_cost=cat["pair_cost"].astype(np.float64),
         segments=np.append(starts, len(pair_gt)).astype(np.int64),
+        touch_gt=cat["touch_gt"].astype(np.int64),
+        touch_trk=cat["touch_trk"].astype(np.int64),
+        touch_iou=cat["touch_iou"].astype(np.float64),
     )

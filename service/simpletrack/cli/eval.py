@@ -1,5 +1,6 @@
 """``simpletrack eval kitti``: track the KITTI sequences (or take existing result files) and
-score them with AB3DMOT's KITTI 3D MOT evaluator (3D IoU 0.25)."""
+score them with AB3DMOT's KITTI 3D MOT evaluator (3D IoU 0.25), plus TrackEval's HOTA and IDF1
+on the same boxes."""
 
 from __future__ import annotations
 
@@ -52,11 +53,12 @@ def register(sub: Any) -> None:
     bench = p.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
     k = bench.add_parser(
         "kitti",
-        help="track KITTI sequences and score them (sAMOTA, MOTA, IDS, ...)",
+        help="track KITTI sequences and score them (sAMOTA, MOTA, IDS, HOTA, IDF1, ...)",
         description=(
             "Track KITTI tracking sequences with the core tracker (one tracker per sequence for "
             "all classes), write KITTI result files, and score them as AB3DMOT's evaluator "
-            "does (3D IoU >= 0.25). With --results, score existing result files instead."
+            "does (3D IoU >= 0.25), with TrackEval's HOTA and IDF1 (3D IoU) beside its figures. "
+            "With --results, score existing result files instead."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -168,7 +170,10 @@ def _table(metrics: dict[str, dict[str, float]]) -> None:
     from rich.table import Table
 
     # One row per figure, one column per class: fits a narrow terminal.
-    table = Table(title="KITTI 3D MOT (3D IoU 0.25)")
+    table = Table(
+        title="KITTI 3D MOT (3D IoU 0.25)",
+        caption="HOTA: mean over 3D IoU alpha 0.05..0.95; IDF1: 3D IoU >= 0.25",
+    )
     table.add_column("figure")
     for cls in metrics:
         table.add_column(cls, justify="right")
