@@ -14,6 +14,7 @@ from pydantic import ValidationError
 from simpletrack.core import tracker as tracker_module
 from simpletrack.core.config import ClassConfig, Matcher, Metric, TrackerConfig, preset
 from simpletrack.core.frames import Tracks
+from simpletrack.core.lifecycle import UpdateKind
 from simpletrack.core.tracker import Tracker
 from tests.core.helpers import car, config, frame
 
@@ -248,13 +249,53 @@ def test_widening_gate_keeps_identity_through_an_occlusion(
     # 3 m off after 3 missed frames: beyond the fixed 2 m gate, within 2 + 0.5 * 3.
     assert _occlusion_ids(0.0, 3.0, matcher=matcher)[-1] == [1]  # renumbered
     assert set(map(tuple, _occlusion_ids(0.5, 3.0, matcher=matcher))) == {(0,)}
-    # 4 m is beyond 3.5 as well.
-    assert _occlusion_ids(0.5, 4.0, matcher=matcher)[-1] == [1]
+    # 3.75 m is beyond 3.5: the widening counts the 3 missed frames, not 4.
+    assert _occlusion_ids(0.5, 3.75, matcher=matcher)[-1] == [1]
+
+
+@pytest.mark.parametrize("matcher", list(Matcher))
+@pytest.mark.parametrize("cells", [None, 0, 4], ids=["dense", "gated", "mixed"])
+def test_widening_gate_widens_only_the_coasting_tracks_gate(
+    matcher: Matcher, cells: int | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two cars at 10 m/s; B is unseen for 3 frames. On the frame B is seen again 3 m off,
+    A (seen every frame) is seen 2.5 m off: B's gate has widened to 3.5 m, A's is 2 m.
+    Three parked cars of the other class make that class's block the larger one: with
+    ``cells`` 4 the moving cars' class is solved dense inside a gated frame."""
+    if cells is not None:
+        monkeypatch.setattr(tracker_module, "DENSE_CELLS", cells)
+    cfg = config(
+        min_hits=1,
+        max_age=5,
+        two_stage=False,
+        metric=Metric.L2,
+        max_distance=2.0,
+        gate_widening=0.5,
+        matcher=matcher,
+    )
+    parked = [car(10.0 * i, -50.0, cls=1) for i in range(3)]
+    t = Tracker(cfg)
+
+    def moving_ids() -> dict[float, int]:
+        live = (t.tracks.update == UpdateKind.MATCHED) & (t.tracks.cls == 0)
+        ys = t.tracks.out_box[live, 1].round().tolist()
+        return dict(zip(ys, t.tracks.ids[live].tolist(), strict=True))
+
+    for k in range(15):
+        t.step(frame([car(1.0 * k, 0.0), car(1.0 * k, 20.0), *parked], 0.1 * k))
+    before = moving_ids()
+    for k in range(15, 18):
+        t.step(frame([car(1.0 * k, 0.0), *parked], 0.1 * k))
+    t.step(frame([car(18.0 + 2.5, 0.0), car(18.0 + 3.0, 20.0), *parked], 1.8))
+    after = moving_ids()
+    assert after[20.0] == before[20.0]  # B kept its id
+    assert after[0.0] not in before.values()  # A's detection started a new track
 
 
 def test_widening_gate_leaves_a_track_seen_last_frame_at_max_distance() -> None:
-    # No missed frame (k = 0): a 3 m jump is beyond the 2 m gate, widening or not.
-    assert _occlusion_ids(widening=0.5, jump=3.0, missed=0)[-1] == [1]
+    # No missed frame (k = 0): a 2.25 m jump is beyond the 2 m gate, widening or not.
+    assert _occlusion_ids(widening=0.5, jump=2.25, missed=0)[-1] == [1]
+    assert _occlusion_ids(widening=0.5, jump=1.75, missed=0)[-1] == [0]
 
 
 # ------------------------------------------------------------------ covariance bound
@@ -291,8 +332,8 @@ def test_max_position_std_spares_a_matched_track() -> None:
     ("fields", "named"),
     [
         (
-            {"coast_output": 3, "max_age": 2},
-            r"coast_output \(3\) must be at most max_age - 1 \(1\)",
+            {"coast_output": 2, "max_age": 2},
+            r"coast_output \(2\) must be at most max_age - 1 \(1\)",
         ),
         ({"coast_output": -1}, "-1"),
         ({"gate_widening": -0.5}, r"-0\.5"),
