@@ -9,6 +9,7 @@ from simpletrack.core.config import (
     OutputPolicy,
     TieOrder,
     TrackerConfig,
+    TrackScore,
     VerticalOverlap,
     preset,
 )
@@ -24,6 +25,7 @@ __all__ = [
     "MotionModel",
     "OutputPolicy",
     "TieOrder",
+    "TrackScore",
     "Tracker",
     "TrackerConfig",
     "Tracks",

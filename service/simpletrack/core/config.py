@@ -38,6 +38,13 @@ class OutputPolicy(StrEnum):
     NUSCENES = "nuscenes"  # every live track; coasting ones with a decayed score
 
 
+class TrackScore(StrEnum):
+    """The score a track carries (and reports) from frame to frame."""
+
+    DETECTION = "detection"  # the matched detection's; coasting: x coast_score_decay per frame
+    FUSED = "fused"  # CBMOT: decays by score_decay per frame, fused with each matched detection
+
+
 class VerticalOverlap(StrEnum):
     EXACT = "exact"
     REFERENCE = "reference"  # the reference code's formula; only for parity comparisons
@@ -76,12 +83,69 @@ class ClassConfig(_Frozen):
     matcher: Matcher = Matcher.HUNGARIAN
     min_hits: Annotated[int, Field(ge=0, le=1000)] = 3
     max_age: Annotated[int, Field(ge=1, le=1000)] = 2
+    # Learning-free track-score and life-cycle options; every one is off by default, which
+    # leaves the tracker exactly as the spec (and the wod/nuscenes presets) describe it.
+    track_score: TrackScore = Field(
+        TrackScore.DETECTION,
+        description="detection: a matched track takes its detection's score, a coasting one "
+        "is multiplied by the tracker's coast_score_decay each frame; fused (CBMOT, "
+        "'multiplication'): each frame (key or not) the score first drops by score_decay "
+        "(clipped at 0), then a stage-1 match (also one re-associated after a gap) fuses it "
+        "with the detection's, s = 1 - (1 - s_det)(1 - s_track); extended and coasting tracks "
+        "keep the dropped score; a new track starts at its detection's score",
+    )
+    score_decay: Probability = Field(
+        0.05,
+        description="fused track_score: subtracted from the score every frame (CBMOT's run "
+        "uses 0.2 per 2 Hz nuScenes frame, i.e. 0.04 per 10 Hz frame); unused with detection",
+    )
+    delete_below: Probability | None = Field(
+        None,
+        description="none: off. A confirmed track whose score after this frame's update "
+        "(the latest score, as CBMOT; not Fast-Poly's average) is below this dies at the end "
+        "of the key frame, whatever its age; max_age still kills it at the latest",
+    )
+    coast_output: Annotated[int, Field(ge=0, le=999)] = Field(
+        0,
+        description="0: off. A confirmed track not matched at stage 1 on a frame is still "
+        "written while its time_since_update <= coast_output, i.e. for up to coast_output "
+        "frames after its last stage-1 match or stage-2 extension (extended frames too), "
+        "with its prediction (extended: corrected) as box and the score of its last stage-1 "
+        "match (with fused, the fused score of that match; never the decayed one); any "
+        "output policy (under nuscenes it only replaces the decayed score). Must be at most "
+        "max_age - 1 so that every such track is alive",
+    )
+    gate_widening: Annotated[float, Field(ge=0.0)] = Field(
+        0.0,
+        description="0: off. Stage 1 accepts a pair with a track that has coasted k frames "
+        "(time_since_update k before this frame) up to max_distance + gate_widening * "
+        "min(k, max_age) (PC3T/CasTrack); stage 2 keeps stage2_max_distance",
+    )
+    max_position_std: Annotated[float, Field(gt=0.0)] | None = Field(
+        None,
+        description="none: off. Metres: on a key frame a track not matched at stage 1 "
+        "(coasting or extended) whose predicted position std sqrt(P_xx + P_yy) (this "
+        "frame's Kalman prediction) exceeds this dies, before max_age if need be (RobMOT); "
+        "max_age still bounds every life. Never fires with motion constant_velocity (no "
+        "covariance)",
+    )
+
+    @property
+    def widest_max_distance(self) -> float:
+        """The widest stage-1 threshold a track of this class can get: ``gate_widening``
+        counts at most max_age coasted frames (a track that has coasted longer is dead)."""
+        return self.max_distance + self.gate_widening * self.max_age
 
     @model_validator(mode="after")
     def _thresholds_ordered(self) -> ClassConfig:
         if self.two_stage and self.score_low > self.score_high:
             raise ValueError(
                 f"score_low ({self.score_low}) must not exceed score_high ({self.score_high})"
+            )
+        if self.coast_output > self.max_age - 1:
+            raise ValueError(
+                f"coast_output ({self.coast_output}) must be at most max_age - 1 "
+                f"({self.max_age - 1}): a track is dead after max_age missed frames"
             )
         return self
 

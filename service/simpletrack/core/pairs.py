@@ -37,11 +37,13 @@ _RANGE = {Metric.IOU_3D: 1.0, Metric.IOU_BEV: 1.0, Metric.GIOU_3D: 2.0, Metric.G
 
 def far_cost(c: ClassConfig) -> float:
     """Cost of an unlisted pair in a gated Hungarian solve: the metric's range where the
-    threshold is inside it (far pairs cost about that), else twice the threshold."""
+    widest stage-1 threshold is inside it (far pairs cost about that), else twice that
+    threshold; either way more than any pair a stage-1 threshold accepts."""
+    reach = c.widest_max_distance
     top = _RANGE.get(c.metric)
-    if top is not None and c.max_distance < top:
+    if top is not None and reach < top:
         return top
-    return 2.0 * c.max_distance
+    return 2.0 * reach
 
 
 @dataclass(frozen=True, slots=True)

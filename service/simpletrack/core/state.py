@@ -26,6 +26,8 @@ class TrackTable:
     state: npt.NDArray[np.int8]  # TrackState
     update: npt.NDArray[np.int8]  # UpdateKind of the latest frame
     out_box: npt.NDArray[np.float64]  # (T, 7) box reported for the latest frame
+    # The score taken on the last stage-1 match (undecayed): what coast_output writes.
+    match_score: npt.NDArray[np.float64]
 
     @classmethod
     def empty(cls) -> TrackTable:
@@ -42,6 +44,7 @@ class TrackTable:
             state=np.zeros(0, dtype=np.int8),
             update=np.zeros(0, dtype=np.int8),
             out_box=np.zeros((0, 7)),
+            match_score=np.zeros(0),
         )
 
     def __len__(self) -> int:
@@ -61,13 +64,17 @@ class TrackTable:
 
     @classmethod
     def from_msgpack_obj(cls, obj: dict[str, Any]) -> TrackTable:
-        missing = [name for name in _FIELDS if name not in obj]
+        """Also reads a state written before a later column existed (``_ADDED``)."""
+        missing = [name for name in _FIELDS if name not in obj and name not in _ADDED]
         if missing:
             raise ValueError(f"tracker state lacks {', '.join(missing)}")
-        return cls(*(_unpack_array(obj[name]) for name in _FIELDS))
+        return cls(*(_unpack_array(obj[name if name in obj else _ADDED[name]]) for name in _FIELDS))
 
 
 _FIELDS = tuple(f.name for f in fields(TrackTable))
+# Columns added after states were first written, each with the column an older state fills
+# it from: the same format number then still reads every snapshot a deployment holds.
+_ADDED = {"match_score": "score"}
 
 
 def _pack_array(a: npt.NDArray[Any]) -> dict[str, Any]:

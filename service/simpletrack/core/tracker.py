@@ -3,6 +3,8 @@
 A frame's way: drop degenerate boxes → world frame → class-aware NMS → predict every
 track → stage-1 association per class → stage-2 life extension → life cycle → births →
 deaths → output policy. Pure: arrays in, arrays out; the only state is ``TrackTable``.
+The per-class score and life-cycle options (config.ClassConfig: track_score, delete_below,
+coast_output, gate_widening, max_position_std) are all off by default.
 """
 
 from __future__ import annotations
@@ -13,7 +15,14 @@ import numpy.typing as npt
 from simpletrack.core import gate, geometry
 from simpletrack.core.association import Assignment, assign, assign_pairs
 from simpletrack.core.boxes import F64, YAW, Boxes, transform_boxes
-from simpletrack.core.config import Metric, MotionModel, OutputPolicy, TrackerConfig
+from simpletrack.core.config import (
+    ClassConfig,
+    Metric,
+    MotionModel,
+    OutputPolicy,
+    TrackerConfig,
+    TrackScore,
+)
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
@@ -35,6 +44,7 @@ class Tracker:
         self._kf = KalmanFilter(config.kalman)
         self._cv = ConstantVelocity()
         codes = range(len(config.classes))
+        cc = [config.for_code(c) for c in codes]
         self._nms_iou = np.array([config.for_code(c).nms_iou for c in codes])
         self._score_high = np.array([config.for_code(c).score_high for c in codes])
         self._min_hits = np.array([config.for_code(c).min_hits for c in codes], dtype=np.int64)
@@ -45,14 +55,20 @@ class Tracker:
         self._metric_code = np.array(
             [_METRICS.index(config.for_code(c).metric) for c in codes], dtype=np.int64
         )
-        # One table serves both stages: a gated class lists what either could accept.
+        # One table serves both stages: a gated class lists what either could accept, the
+        # stage-1 gate at its widest (gate_widening).
         self._gate_distance = np.array(
-            [
-                max(config.for_code(c).max_distance, config.for_code(c).stage2_max_distance)
-                for c in codes
-            ]
+            [max(c.widest_max_distance, c.stage2_max_distance) for c in cc]
         )
-        self._far_cost = [far_cost(config.for_code(c)) for c in codes]
+        self._far_cost = [far_cost(c) for c in cc]
+        self._max_distance = np.array([c.max_distance for c in cc])
+        self._gate_widening = np.array([c.gate_widening for c in cc])
+        self._fused = np.array([c.track_score is TrackScore.FUSED for c in cc], dtype=bool)
+        self._score_decay = np.array([c.score_decay for c in cc])
+        # Off is a bound nothing crosses: -inf for a score, +inf for a deviation.
+        self._delete_below = np.array([_or(c.delete_below, -np.inf) for c in cc])
+        self._max_position_std = np.array([_or(c.max_position_std, np.inf) for c in cc])
+        self._coast_output = np.array([c.coast_output for c in cc], dtype=np.int64)
         self.reset()
 
     def reset(self) -> None:
@@ -78,7 +94,7 @@ class Tracker:
         age, tsu = tr.age, tr.time_since_update
         if key:
             age, tsu = age + 1, tsu + 1
-        score = tr.score * self.config.coast_score_decay
+        score = self._decayed(tr)
 
         # Stage 1: detections over the (per-class or non-key) high threshold.
         high = (
@@ -100,7 +116,7 @@ class Tracker:
 
         cand = np.flatnonzero(is_high)
         matched_det, matched_trk, unmatched_det = self._stage1(
-            dets.cls, cand, row[cand], tr.cls, table
+            dets.cls, cand, row[cand], tr.cls, self._stage1_reach(tr), table
         )
         update = np.full(len(tr), UpdateKind.COASTED, dtype=np.int8)
         update[matched_trk] = UpdateKind.MATCHED
@@ -127,7 +143,11 @@ class Tracker:
             else:
                 x[corrected] = self._cv.update(meas, vel, x_pred[corrected])
             t_update[corrected] = frame.stamp
-        score[matched_trk] = dets.score[matched_det]
+        score[matched_trk] = self._matched_score(
+            dets.score[matched_det], score[matched_trk], tr.cls[matched_trk]
+        )
+        match_score = tr.match_score.copy()
+        match_score[matched_trk] = score[matched_trk]
 
         hits = tr.hits.copy()
         state = tr.state.copy()
@@ -136,6 +156,7 @@ class Tracker:
             hits[touched] += 1
             tsu = np.where(touched, 0, tsu).astype(np.int32)
             state = self._transition(tr.cls, state, hits, tsu)
+            state = self._option_deaths(tr.cls, state, score, update, p_pred)
 
         out_box = pred_box.copy()
         out_box[corrected] = x[corrected, :7]
@@ -152,6 +173,7 @@ class Tracker:
             state=state,
             update=update,
             out_box=out_box,
+            match_score=match_score,
         )
         if key:
             tr = tr.concat(self._births(dets.take(unmatched_det), frame.stamp))
@@ -281,10 +303,12 @@ class Tracker:
         cand: I64,
         cand_rows: I64,
         trk_cls: npt.NDArray[np.int32],
+        reach: F64,
         table: PairTable,
     ) -> tuple[I64, I64, I64]:
         """Class by class (a detection never matches a track of another class). A dense class
-        is solved on its full block, as it always was; a gated one from its listed pairs."""
+        is solved on its full block, as it always was; a gated one from its listed pairs.
+        ``reach`` is each track's threshold (max_distance unless gate_widening is on)."""
         d_cls = det_cls[cand]
         n_rows = int(cand_rows.max(initial=-1)) + 1
         md: list[I64] = []
@@ -294,9 +318,13 @@ class Tracker:
             c = self.config.for_code(code)
             in_class = d_cls == code
             t_idx = np.flatnonzero(trk_cls == code)
+            widened = c.gate_widening > 0
             if table.matrix is not None:
                 block = table.matrix[np.ix_(cand_rows[in_class], t_idx)]
-                a: Assignment = assign(block, c.max_distance, c.matcher)
+                if widened:
+                    a: Assignment = self._assign_widened(block, reach[t_idx], c, code)
+                else:
+                    a = assign(block, c.max_distance, c.matcher)
                 d_idx = cand[in_class]
                 md.append(d_idx[a.det])
                 mt.append(t_idx[a.track])
@@ -314,7 +342,22 @@ class Tracker:
             if table.dense[code]:
                 block = np.full(shape, np.inf)
                 block[pr, pc] = pd
-                a = assign(block, c.max_distance, c.matcher)
+                if widened:
+                    a = self._assign_widened(block, reach[t_idx], c, code)
+                else:
+                    a = assign(block, c.max_distance, c.matcher)
+            elif widened:
+                col_reach = reach[t_idx]
+                ok = pd <= col_reach[pc]
+                a = assign_pairs(
+                    pr[ok],
+                    pc[ok],
+                    pd[ok],
+                    shape,
+                    float(col_reach.max(initial=0.0)),
+                    c.matcher,
+                    self._far_cost[code],
+                )
             else:
                 a = assign_pairs(pr, pc, pd, shape, c.max_distance, c.matcher, self._far_cost[code])
             d_idx = cand[in_class]
@@ -327,6 +370,21 @@ class Tracker:
             np.concatenate(mt) if mt else empty,
             np.concatenate(um) if um else empty,
         )
+
+    def _stage1_reach(self, tr: TrackTable) -> F64:
+        """Each track's stage-1 threshold: max_distance, widened per frame coasted so far
+        (time_since_update before this frame, capped at max_age as the gate assumes)."""
+        k = np.minimum(tr.time_since_update, self._max_age[tr.cls])
+        return np.asarray(
+            self._max_distance[tr.cls] + self._gate_widening[tr.cls] * k, dtype=np.float64
+        )
+
+    def _assign_widened(self, block: F64, col_reach: F64, c: ClassConfig, code: int) -> Assignment:
+        """``assign`` with a threshold per column: a pair over its column's costs the far
+        cost (more than any threshold, finite so that the Hungarian solve stays feasible),
+        and the solve's rejection at the widest threshold then drops exactly those."""
+        masked = np.where(block <= col_reach[None, :], block, self._far_cost[code])
+        return assign(masked, float(col_reach.max(initial=0.0)), c.matcher)
 
     def _stage2(
         self,
@@ -402,6 +460,44 @@ class Tracker:
         out[dies] = TrackState.DEAD
         return out
 
+    def _option_deaths(
+        self,
+        cls: npt.NDArray[np.int32],
+        state: npt.NDArray[np.int8],
+        score: F64,
+        update: npt.NDArray[np.int8],
+        p_pred: F64,
+    ) -> npt.NDArray[np.int8]:
+        """Deaths besides max_age: a confirmed track scored under delete_below; a track
+        without a stage-1 match whose predicted position is too uncertain (max_position_std)."""
+        dies = (state == TrackState.CONFIRMED) & (score < self._delete_below[cls])
+        limit = self._max_position_std[cls]
+        if np.isfinite(limit).any():
+            std = np.sqrt(p_pred[:, 0, 0] + p_pred[:, 1, 1])
+            dies |= (update != UpdateKind.MATCHED) & (std > limit)
+        if not dies.any():
+            return state
+        out = state.copy()
+        out[dies] = TrackState.DEAD
+        return out
+
+    def _decayed(self, tr: TrackTable) -> F64:
+        """Every track's score before this frame's matches: x coast_score_decay, or with
+        the fused track score minus score_decay (clipped at 0)."""
+        score = tr.score * self.config.coast_score_decay
+        fused = self._fused[tr.cls]
+        if fused.any():
+            dropped = np.maximum(tr.score - self._score_decay[tr.cls], 0.0)
+            score = np.where(fused, dropped, score)
+        return np.asarray(score, dtype=np.float64)
+
+    def _matched_score(self, s_det: F64, s_trk: F64, cls: npt.NDArray[np.int32]) -> F64:
+        """A matched track's new score: its detection's, or fused with its decayed one."""
+        fused = self._fused[cls]
+        if not fused.any():
+            return s_det
+        return np.asarray(np.where(fused, 1.0 - (1.0 - s_det) * (1.0 - s_trk), s_det))
+
     def _births(self, dets: Boxes, stamp: float) -> TrackTable:
         n = len(dets)
         ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
@@ -426,6 +522,7 @@ class Tracker:
             state=np.where(confirmed, TrackState.CONFIRMED, TrackState.TENTATIVE).astype(np.int8),
             update=np.full(n, UpdateKind.MATCHED, dtype=np.int8),
             out_box=dets.params.copy(),
+            match_score=dets.score.copy(),
         )
 
     def _output(self, tr: TrackTable) -> Tracks:
@@ -438,10 +535,16 @@ class Tracker:
             keep = (tr.state == TrackState.TENTATIVE) | (confirmed & matched)
         else:
             keep = confirmed & matched
+        # coast_output: a confirmed track without a match, within its window, is written
+        # with the score of its last match.
+        window = self._coast_output[tr.cls]
+        coast = confirmed & ~matched & (window > 0) & (tr.time_since_update <= window)
+        keep |= coast
+        score = np.where(coast, tr.match_score, tr.score)[keep]
         t = tr.take(keep)
         return Tracks(
             ids=t.ids,
-            boxes=Boxes(params=t.out_box, score=t.score, cls=t.cls),
+            boxes=Boxes(params=t.out_box, score=score, cls=t.cls),
             velocity=t.x[:, 7:10].copy(),
             state=t.state,
             update=t.update,
@@ -475,6 +578,10 @@ class Tracker:
         tracker.last_stamp = None if obj["last_stamp"] is None else float(obj["last_stamp"])
         tracker.tracks = TrackTable.from_msgpack_obj(obj["tracks"])
         return tracker
+
+
+def _or(value: float | None, off: float) -> float:
+    return off if value is None else value
 
 
 __all__ = ["YAW", "Tracker"]
