@@ -8,6 +8,7 @@ import argparse
 import json
 import math
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,8 @@ EPILOG = """examples:
 
 # Figures printed as counts rather than percentages.
 COUNTS = ("IDS", "FRAG", "FP", "FN", "TP")
+# Figures of the cross-validation table beside sAMOTA / MOTA / IDS.
+CV_EXTRA = ("HOTA", "DetA", "AssA", "IDF1")
 
 
 def register(sub: Any) -> None:
@@ -97,6 +100,20 @@ def register(sub: Any) -> None:
         choices=["local", "zenoh"],
         default="local",
         help="run the tracker in-process (local) or through the service (zenoh)",
+    )
+    k.add_argument(
+        "--cv",
+        choices=["loso"],
+        help="cross-validate instead: leave one sequence out, choose settings on the others "
+        "among a few structural candidates, pool the held-out results, compare with wod",
+    )
+    k.add_argument(
+        "--candidates",
+        help="with --cv: comma-separated candidate names (default: all of "
+        "simpletrack.eval.cv.CANDIDATES; wod is always first)",
+    )
+    k.add_argument(
+        "--jobs", type=int, default=2, help="worker processes for --cv (default: %(default)s)"
     )
     k.set_defaults(func=run)
 
@@ -230,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no labels for sequence(s) {', '.join(missing)} in {labels}")
 
     started = time.perf_counter()
+    if args.cv is not None:
+        return _cross_validate(args, seqs, classes)
     if args.results is not None:
         results = args.results
         if not results.is_dir():
@@ -258,5 +277,65 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(_json_ready(metrics), indent=1) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cross_validate(args: argparse.Namespace, seqs: Sequence[str], classes: Sequence[str]) -> int:
+    from simpletrack.eval.cv import BASE, CANDIDATES, cross_validate, summary_rows
+
+    if args.results is not None:
+        raise UserError("--cv tracks the sequences itself: drop --results")
+    if args.jobs < 1:
+        raise UserError(f"--jobs must be at least 1, not {args.jobs}")
+    candidates = list(CANDIDATES)
+    if args.candidates is not None:
+        known = {c.name: c for c in CANDIDATES}
+        names = _split(args.candidates, "candidates")
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise UserError(f"unknown candidate(s) {', '.join(unknown)}; known: {', '.join(known)}")
+        candidates = [known[BASE], *(known[n] for n in names if n != BASE)]
+    started = time.perf_counter()
+    try:
+        cv = cross_validate(args.data, seqs, classes, candidates, jobs=args.jobs)
+    except (FileNotFoundError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    print(
+        f"leave-one-sequence-out on {len(seqs)} sequences, {cv.configurations_tried} "
+        "configurations tried; official figures, unchained in brackets"
+    )
+    head = ("class", "settings", "sAMOTA %", "MOTA %", "IDS", *CV_EXTRA)
+    lines: list[tuple[str, ...]] = [head]
+    for cls, name, figs in summary_rows(cv):
+        lines.append(
+            (
+                cls,
+                name,
+                f"{figs['sAMOTA']:.2f} ({figs['sAMOTA_u']:.2f})",
+                f"{figs['MOTA']:.2f} ({figs['MOTA_u']:.2f})",
+                str(int(figs["IDS"])),
+                *(f"{figs[k]:.2f}" for k in CV_EXTRA),
+            )
+        )
+    widths = [max(len(row[i]) for row in lines) for i in range(len(head))]
+    for row in lines:
+        print(
+            "  ".join(
+                v.ljust(w) if i < 2 else v.rjust(w)
+                for i, (v, w) in enumerate(zip(row, widths, strict=True))
+            )
+        )
+    for cls, r in cv.classes.items():
+        verdict = "beats" if r.accepted else "does not beat"
+        counts = Counter(r.choices.values()).most_common()
+        print(
+            f"{cls}: per fold {', '.join(f'{n} x{k}' for n, k in counts)}; the pooled held-out "
+            f"result {verdict} wod; chosen on all {len(seqs)} sequences: {r.chosen_on_all}"
+        )
+    print(f"done in {time.perf_counter() - started:.0f} s")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(cv.to_json(), indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0

@@ -1,0 +1,274 @@
+"""Leave-one-sequence-out cross-validation of tracker settings on KITTI (``simpletrack eval
+kitti --cv loso``): the only way the ``kitti`` preset is chosen.
+
+The steps:
+1. Candidates: a short list of structural settings (``CANDIDATES``), each a few per-class
+   fields over the paper's WOD settings (``wod`` itself first). Each is tried per class.
+2. Tracking: every sequence once per candidate and class (classes are tracked apart: the
+   association is class-gated and NMS class-aware), result files kept per candidate.
+3. Folds: for each held-out sequence and class, every candidate is scored on the other
+   sequences. Scores for choosing are the unchained sAMOTA and MOTA (``tune.unchained_figures``:
+   the official evaluator's re-averaging can drop a whole track one ulp under a threshold, a
+   rounding lottery that must not decide). The choice: among candidates with no more ID
+   switches than ``wod`` and a higher unchained sAMOTA and MOTA than it on those sequences,
+   the one with the highest sum; else ``wod``.
+4. Pooling: each held-out sequence's result file, from the candidate chosen without it, goes
+   into one folder; the pooled folder is scored once (official and unchained figures), next
+   to every candidate with fixed settings on the same sequences.
+5. Verdict: the same choice made on all the sequences is the preset the procedure gives; it is
+   accepted for a class only if the pooled held-out figures beat ``wod``'s (unchained sAMOTA
+   and MOTA higher, no more ID switches).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import shutil
+import tempfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from simpletrack.core.config import TrackerConfig, preset
+from simpletrack.datasets.kitti import (
+    ResultRows,
+    SequenceFrame,
+    config_class_code,
+    load_sequence,
+    read_calib,
+    tracks_to_rows,
+    write_results,
+)
+from simpletrack.eval.kitti import evaluate_problem
+from simpletrack.eval.kitti_data import build_problem
+from simpletrack.eval.tracking import track_sequence
+from simpletrack.eval.tune import build_config, unchained_figures
+
+BASE = "wod"
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """Per-class fields (``ClassConfig``) changed from the ``wod`` settings."""
+
+    name: str
+    changes: tuple[tuple[str, Any], ...] = ()
+
+    def config(self, cls: str) -> TrackerConfig:
+        return build_config(preset(BASE), cls, dict(self.changes), {})
+
+
+# Fixed before any cross-validation ran, from the mechanisms' papers, not from figures: each
+# mechanism alone at its published or structural setting, and the combinations its paper uses.
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate(BASE),
+    # CBMOT: the track's score fused with each matched detection's, decaying in between.
+    Candidate("fused", (("track_score", "fused"),)),
+    # CBMOT's life cycle: a longer life ended by the fused score instead of a frame count.
+    Candidate(
+        "fused_life",
+        (("track_score", "fused"), ("max_age", 4), ("delete_below", 0.3)),
+    ),
+    # AB3DMOT's output: a confirmed track is written through its (max_age - 1) coasting frames.
+    Candidate("coast", (("coast_output", 1),)),
+    # Fast-Poly: fused scores and one coasting box per gap.
+    Candidate("fused_coast", (("track_score", "fused"), ("coast_output", 1))),
+    # One more frame of life: identity through a two-frame occlusion.
+    Candidate("age3", (("max_age", 3),)),
+    # PC3T / CasTrack: a longer life with a gate that widens while a track coasts.
+    Candidate("widen", (("max_age", 3), ("gate_widening", 0.25))),
+    # RobMOT: deletion when the predicted position is too uncertain, not after a frame count.
+    Candidate("std", (("max_age", 6), ("max_position_std", 2.0))),
+    # AB3DMOT's small-object association: centre distance under 2 m.
+    Candidate("l2", (("metric", "l2"), ("max_distance", 2.0), ("stage2_max_distance", 2.0))),
+    # The paper's pedestrian threshold for every class: tracks start from weaker detections.
+    Candidate("start_0.5", (("score_high", 0.5),)),
+    # The structural ones together.
+    Candidate(
+        "fused_age3_widen",
+        (("track_score", "fused"), ("max_age", 3), ("gate_widening", 0.25)),
+    ),
+)
+
+
+@dataclass
+class ClassResult:
+    """One class's cross-validation: figures are ``evaluate_problem``'s plus ``sAMOTA_u`` and
+    ``MOTA_u`` (unchained)."""
+
+    cls: str
+    fixed: dict[str, dict[str, float]]  # candidate -> its figures on every sequence
+    loso: dict[str, float]  # the pooled held-out figures of the choice
+    choices: dict[str, str]  # held-out sequence -> the candidate chosen on the others
+    chosen_on_all: str  # the choice made on every sequence: the preset's settings
+    accepted: bool  # the pooled held-out figures beat wod's
+
+
+@dataclass
+class CrossValidation:
+    seqs: list[str]
+    candidates: list[dict[str, Any]]
+    classes: dict[str, ClassResult] = field(default_factory=dict)
+
+    @property
+    def configurations_tried(self) -> int:
+        return len(self.candidates) * len(self.classes)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "seqs": self.seqs,
+            "candidates": self.candidates,
+            "configurations_tried": self.configurations_tried,
+            "classes": {c: asdict(r) for c, r in self.classes.items()},
+        }
+
+
+def better_than_base(figs: dict[str, float], base: dict[str, float]) -> bool:
+    return (
+        figs["sAMOTA_u"] > base["sAMOTA_u"]
+        and figs["MOTA_u"] > base["MOTA_u"]
+        and figs["IDS"] <= base["IDS"]
+    )
+
+
+def choose(scores: dict[str, dict[str, float]], order: Sequence[str]) -> str:
+    """Step 3's rule: the best candidate that beats ``wod`` on these scores, else ``wod``."""
+    base = scores[BASE]
+    better = [c for c in order if c != BASE and better_than_base(scores[c], base)]
+    if not better:
+        return BASE
+    return max(better, key=lambda c: (scores[c]["sAMOTA_u"] + scores[c]["MOTA_u"], -order.index(c)))
+
+
+def fold_choices(
+    scores: Mapping[tuple[str, tuple[str, ...]], dict[str, float]],
+    seqs: Sequence[str],
+    names: Sequence[str],
+) -> dict[str, str]:
+    """Held-out sequence -> the candidate ``choose`` picks from ``scores[candidate, training
+    sequences]``, the training sequences being all but the held-out one."""
+    choices = {}
+    for held in seqs:
+        train = tuple(s for s in seqs if s != held)
+        choices[held] = choose({c: scores[c, train] for c in names}, names)
+    return choices
+
+
+# ----------------------------------------------------------------------------- workers
+@dataclass
+class _Worker:
+    data: Path
+    root: Path
+    frames: dict[tuple[str, str], list[SequenceFrame]] = field(default_factory=dict)
+
+
+_W: _Worker | None = None
+
+
+def _init(data: Path, root: Path) -> None:
+    global _W
+    _W = _Worker(data, root)
+
+
+def _results_dir(root: Path, cls: str, name: str) -> Path:
+    return root / cls / name / "data_0"
+
+
+def _track(job: tuple[str, Candidate, tuple[str, ...]]) -> None:
+    """Step 2: one candidate, one class, every sequence."""
+    assert _W is not None
+    cls, cand, seqs = job
+    config = cand.config(cls)
+    names = list(config.class_names)
+    names[config_class_code(config, cls)] = cls
+    out = _results_dir(_W.root, cls, cand.name).parent
+    for seq in seqs:
+        key = (cls, seq)
+        if key not in _W.frames:
+            _W.frames[key] = load_sequence(_W.data, seq, config, [cls])
+        frames = _W.frames[key]
+        outputs = track_sequence(frames, config)
+        rows = ResultRows.concat(
+            tracks_to_rows(f.index, t.ids, t.boxes, names)
+            for f, t in zip(frames, outputs, strict=True)
+        )
+        write_results(out, seq, rows, read_calib(_W.data / "calib" / f"{seq}.txt"))
+
+
+def _figures(job: tuple[str, str, tuple[str, ...]]) -> dict[str, float]:
+    """Official and unchained figures of one results folder on some sequences."""
+    assert _W is not None
+    cls, name, seqs = job
+    problem = build_problem(_W.data / "labels", _results_dir(_W.root, cls, name), seqs, cls)
+    return {**evaluate_problem(problem), **unchained_figures(problem)}
+
+
+# ----------------------------------------------------------------------------- the run
+def cross_validate(
+    data: Path,
+    seqs: Sequence[str],
+    classes: Sequence[str],
+    candidates: Sequence[Candidate] = CANDIDATES,
+    jobs: int = 2,
+    progress: Callable[[str], None] = print,
+) -> CrossValidation:
+    if len(seqs) < 2:
+        raise ValueError(f"leave-one-out needs at least 2 sequences, not {len(seqs)}")
+    names = [c.name for c in candidates]
+    if names[0] != BASE or len(set(names)) != len(names):
+        raise ValueError(f"candidates must start with {BASE!r} and have unique names: {names}")
+    for cand in candidates:
+        for cls in classes:
+            cand.config(cls)  # a bad field fails here, before any tracking
+    seqs = tuple(seqs)
+    result = CrossValidation(
+        list(seqs), [{"name": c.name, "changes": dict(c.changes)} for c in candidates]
+    )
+    with tempfile.TemporaryDirectory(prefix="simpletrack-cv-") as tmp:
+        root = Path(tmp)
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(max(1, jobs), initializer=_init, initargs=(data, root)) as pool:
+            tracking = [(cls, c, seqs) for cls in classes for c in candidates]
+            progress(f"tracking {len(seqs)} sequences x {len(tracking)} (class, candidate)")
+            pool.map(_track, tracking)
+            folds: list[str | None] = [None, *seqs]
+            scoring = [
+                (cls, c.name, tuple(s for s in seqs if s != held))
+                for cls in classes
+                for c in candidates
+                for held in folds
+            ]
+            progress(f"scoring {len(scoring)} (class, candidate, fold) evaluations")
+            scored = dict(zip(scoring, pool.map(_figures, scoring), strict=True))
+            for cls in classes:
+                choices = fold_choices(
+                    {(c, train): f for (k, c, train), f in scored.items() if k == cls}, seqs, names
+                )
+                pooled = _results_dir(root, cls, "loso")
+                pooled.mkdir(parents=True)
+                for held, name in choices.items():
+                    shutil.copy(_results_dir(root, cls, name) / f"{held}.txt", pooled)
+                _init(data, root)
+                loso = _figures((cls, "loso", seqs))
+                fixed = {c: scored[cls, c, seqs] for c in names}
+                result.classes[cls] = ClassResult(
+                    cls=cls,
+                    fixed=fixed,
+                    loso=loso,
+                    choices=choices,
+                    chosen_on_all=choose(fixed, names),
+                    accepted=better_than_base(loso, fixed[BASE]),
+                )
+                progress(f"{cls}: held-out choices {choices}")
+    return result
+
+
+def summary_rows(cv: CrossValidation) -> list[tuple[str, str, dict[str, float]]]:
+    """(class, row name, figures): wod, each candidate alone, then the cross-validated choice."""
+    rows = []
+    for cls, r in cv.classes.items():
+        for name, figs in r.fixed.items():
+            rows.append((cls, name, figs))
+        rows.append((cls, "loso (chosen per fold)", r.loso))
+    return rows
