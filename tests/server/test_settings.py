@@ -103,7 +103,7 @@ def test_class_overrides_file_is_applied_when_the_settings_load(tmp_path: Path) 
             "[Car]\nmax_age = -1\n",
             "Car: max_age: Input should be greater than or equal to 1 (got -1)",
         ),
-        ("[Car]\nscore_low = 0.9\n", "Car: score_low (0.9) must not exceed score_high (0.55)"),
+        ("[Car]\nscore_low = 0.9\n", "Car: score_low (0.9) must not exceed score_high (0.7)"),
         ("Car = 3\n", "Car must be a table of fields (got 3)"),
         ("[Car\n", "line 1"),  # not TOML
     ],

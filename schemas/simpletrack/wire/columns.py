@@ -32,7 +32,14 @@ class ColumnSpec:
 
     def json_schema_extra(self) -> dict[str, Any]:  # JSON values, for the pydantic models
         shape: list[str | int] = ["count"] if self.width == 1 else ["count", self.width]
-        return {"x-dtype": self.dtype, "x-shape": shape}
+        # contentEncoding/contentMediaType: JSON Schema's own words for binary in a string
+        # (base64 when a message is shown as JSON); x-dtype/x-shape: what the bytes hold.
+        return {
+            "contentEncoding": "base64",
+            "contentMediaType": "application/octet-stream",
+            "x-dtype": self.dtype,
+            "x-shape": shape,
+        }
 
 
 def _f32(name: str, width: int, optional: bool = False) -> ColumnSpec:

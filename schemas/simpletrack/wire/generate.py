@@ -1,5 +1,5 @@
-"""Write (or check) the generated artefacts: JSON Schemas under ``schemas/json`` and golden test
-vectors under ``schemas/vectors``.
+"""Write (or check) the generated artefacts: JSON Schemas under ``schemas/json``, golden test
+vectors under ``schemas/vectors`` and the byte-exact examples in ``schemas/README.md``.
 
     python -m simpletrack.wire.generate           # rewrite everything
     python -m simpletrack.wire.generate --check   # exit 1 and list what differs (CI, tests)
@@ -238,13 +238,51 @@ def _dumps(obj: Any) -> str:
     )
 
 
+# The README's byte-exact examples: one message of each kind, as annotated hex.
+EXAMPLES = ("detection_basic", "tracks_basic", "error_unknown_class")
+README = ROOT / "README.md"
+_EXAMPLES_BEGIN = "<!-- generated:examples (python -m simpletrack.wire.generate) -->"
+_EXAMPLES_END = "<!-- end generated:examples -->"
+
+
+def hex_dump(payload: bytes) -> str:
+    """``xxd``-style lines: offset, 16 bytes in hex, the printable ones as text."""
+    lines = []
+    for off in range(0, len(payload), 16):
+        chunk = payload[off : off + 16]
+        text = "".join(chr(b) if 32 <= b < 127 else "." for b in chunk)
+        lines.append(f"{off:08x}: {chunk.hex(' '):<47}  {text}")
+    return "\n".join(lines)
+
+
+def examples_section(vectors: dict[str, bytes]) -> str:
+    parts = [_EXAMPLES_BEGIN]
+    for name in EXAMPLES:
+        payload = vectors[name]
+        parts.append(
+            f"`vectors/{name}.msgpack` ({len(payload)} bytes; decoded: `vectors/{name}.json`):\n"
+            f"```\n{hex_dump(payload)}\n```"
+        )
+    parts.append(_EXAMPLES_END)
+    return "\n".join(parts)
+
+
+def readme_with_examples(text: str, vectors: dict[str, bytes]) -> str:
+    begin, end = text.find(_EXAMPLES_BEGIN), text.find(_EXAMPLES_END)
+    if begin < 0 or end < begin:
+        raise ValueError(f"{README} lacks the markers {_EXAMPLES_BEGIN!r} ... {_EXAMPLES_END!r}")
+    return text[:begin] + examples_section(vectors) + text[end + len(_EXAMPLES_END) :]
+
+
 def artefacts() -> dict[Path, bytes]:
     out: dict[Path, bytes] = {JSON_DIR / n: s.encode() for n, s in json_schemas().items()}
+    payloads = {}
     for name, (kind, make) in VECTORS.items():
-        payload = make()
+        payload = payloads[name] = make()
         out[VECTOR_DIR / f"{name}.msgpack"] = payload
         text = _dumps(decoded_json(kind, payload))
         out[VECTOR_DIR / f"{name}.json"] = text.encode()
+    out[README] = readme_with_examples(README.read_text(), payloads).encode()
     return out
 
 
