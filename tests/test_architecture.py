@@ -28,6 +28,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "wire": {"core"},  # only wire/convert.py, checked below
     "session": set(),
     "client": {"wire", "session"},
+    "ros2": {"wire", "session", "client"},  # an adapter over the client library: light too
     "server": {"core", "wire", "session"},
     "datasets": {"core", "wire"},
     "eval": {"core", "wire", "session", "datasets", "spawn", "server"},
@@ -35,7 +36,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "sim": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server"},
     "bench": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server", "sim"},
     "plot": {"core", "datasets"},
-    "cli": {"core", "wire", "session", "client", "server", *TOOLS},
+    "cli": {"core", "wire", "session", "client", "server", "ros2", *TOOLS},
 }
 
 
@@ -143,6 +144,10 @@ def _loaded_after(statement: str) -> set[str]:
             },
         ),
         ("import simpletrack.wire", {"zenoh", "scipy", "pydantic", "simpletrack.core"}),
+        (
+            "import simpletrack.ros2.bridge",
+            {"scipy", "pydantic", "prometheus_client", "simpletrack.core", "simpletrack.server"},
+        ),
         ("import simpletrack.session", {"pydantic", "scipy", "simpletrack.core"}),
     ],
 )

@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     from simpletrack.cli import (
         bench,
+        bridge,
         demo,
         eval,
         plot,
@@ -37,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         watch,
     )
 
-    for command in (track, eval, plot, replay, record, demo, watch, status, bench, serve):
+    for command in (track, eval, plot, replay, record, demo, watch, status, bench, serve, bridge):
         command.register(sub)
     return parser
 

@@ -1,0 +1,228 @@
+"""Autoware DetectedObjects -> the service's detection columns; the service's tracks ->
+Autoware TrackedObjects.
+
+Detections, object by object:
+    class     the classification with the highest probability (the first of equals), through
+              the label map; an object whose label maps to no class is left out ("unknown_label")
+    score     ``existence_probability``; where a detector leaves it 0 (many Autoware detectors
+              do not estimate existence) the best classification's probability instead, so
+              that the tracker's score thresholds see a real confidence (``ScoreSource``).
+              The float32 is widened through its shortest decimal form (0.9f -> 0.9)
+    box       pose position -> centre; orientation quaternion -> yaw about +z; shape
+              BOUNDING_BOX dimensions x, y, z -> length, width, height. Other shapes (cylinder,
+              polygon) are left out ("not_a_box"), as are objects without any classification
+              ("no_classification")
+    velocity  Autoware's twist is in the object's own frame (x along its heading): linear x/y
+              are rotated by the yaw into the frame of the positions. Sent only when every
+              object of the frame has ``has_twist`` (the column is all or nothing)
+    stamp     header.stamp as ``sec * 1e9 + nanosec`` ns; frame_id is header.frame_id
+Tracks, one TrackedObject each:
+    object_id     ``uuid5(NAMESPACE_URL, "simpletrack:<vehicle>/<sensor>/<track id>")``: the
+                  same track keeps its UUID for as long as the service keeps its id
+    existence     the track score; classification: one entry, the track's class through the
+                  label map (the first label mapped to it; UNKNOWN if none) with probability
+                  1.0, since a track's class is fixed when it is born
+    kinematics    pose from the box centre and yaw (orientation AVAILABLE); twist linear from
+                  the track velocity rotated into the object's frame (z unchanged), angular 0;
+                  acceleration 0; is_stationary false. Every covariance is zero: the service
+                  does not publish its filter covariance, so zero here means "not given"
+    shape         BOUNDING_BOX with the track's size, no footprint
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from collections import Counter
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from simpletrack.ros2.labels import LabelMap
+from simpletrack.ros2.messages import (
+    UUID,
+    DetectedObject,
+    DetectedObjects,
+    Header,
+    ObjectClassification,
+    OrientationAvailability,
+    Point,
+    Pose,
+    PoseWithCovariance,
+    Quaternion,
+    Shape,
+    ShapeType,
+    Time,
+    TrackedObject,
+    TrackedObjectKinematics,
+    TrackedObjects,
+    Twist,
+    TwistWithCovariance,
+    Vector3,
+)
+from simpletrack.wire import BoxArrays, TrackArrays
+
+NS_PER_S = 1_000_000_000
+
+
+class ScoreSource(StrEnum):
+    EXISTENCE = "existence"  # existence_probability, the best class probability where it is 0
+    CLASSIFICATION = "classification"  # the best classification's probability
+
+
+class Skip(StrEnum):
+    """Why an object was left out of its frame."""
+
+    NO_CLASSIFICATION = "no_classification"
+    NOT_A_BOX = "not_a_box"
+    UNKNOWN_LABEL = "unknown_label"
+
+
+@dataclass
+class Converted:
+    """One DetectedObjects as the service's columns, with what was left out."""
+
+    boxes: BoxArrays
+    stamp_ns: int
+    frame_id: str
+    skipped: Counter[Skip] = field(default_factory=Counter)
+    unknown_labels: Counter[int] = field(default_factory=Counter)
+
+
+def yaw_of(q: Quaternion) -> float:
+    """Rotation about +z of a quaternion (the heading of a box lying on the ground)."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def quaternion_of(yaw: float) -> Quaternion:
+    return Quaternion(0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
+
+
+def rotate(x: float, y: float, angle: float) -> tuple[float, float]:
+    c, s = math.cos(angle), math.sin(angle)
+    return c * x - s * y, s * x + c * y
+
+
+def widen(value: float) -> float:
+    """A float32 as the float64 of its shortest decimal form: 0.9f (0.89999997615...) is 0.9,
+    so that score thresholds written in decimal compare as written."""
+    return float(np.format_float_positional(np.float32(value), unique=True, trim="-"))
+
+
+def stamp_ns_of(t: Time) -> int:
+    return t.sec * NS_PER_S + t.nanosec
+
+
+def time_of(stamp_ns: int) -> Time:
+    sec, nanosec = divmod(stamp_ns, NS_PER_S)
+    return Time(sec, nanosec)
+
+
+def best_classification(obj: DetectedObject) -> ObjectClassification | None:
+    best = None
+    for c in obj.classification:
+        if best is None or c.probability > best.probability:
+            best = c
+    return best
+
+
+def detections_to_boxes(
+    msg: DetectedObjects,
+    labels: LabelMap,
+    classes: tuple[str, ...],
+    score: ScoreSource = ScoreSource.EXISTENCE,
+) -> Converted:
+    """The frame's boxes; class codes index ``classes`` (the service's class table)."""
+    out = Converted(_empty(classes), stamp_ns_of(msg.header.stamp), msg.header.frame_id)
+    rows: list[tuple[int, tuple[float, ...], float, float]] = []
+    twists: list[tuple[float, float] | None] = []
+    for obj in msg.objects:
+        best = best_classification(obj)
+        if best is None:
+            out.skipped[Skip.NO_CLASSIFICATION] += 1
+            continue
+        if obj.shape.type != ShapeType.BOUNDING_BOX:
+            out.skipped[Skip.NOT_A_BOX] += 1
+            continue
+        cls = labels.class_of(best.label)
+        if cls is None or cls not in classes:
+            out.skipped[Skip.UNKNOWN_LABEL] += 1
+            out.unknown_labels[best.label] += 1
+            continue
+        pose = obj.kinematics.pose_with_covariance.pose
+        yaw = yaw_of(pose.orientation)
+        p, d = pose.position, obj.shape.dimensions
+        value = best.probability
+        if score is ScoreSource.EXISTENCE and obj.existence_probability > 0:
+            value = obj.existence_probability
+        rows.append((classes.index(cls), (p.x, p.y, p.z, d.x, d.y, d.z), yaw, widen(value)))
+        lin = obj.kinematics.twist_with_covariance.twist.linear
+        twists.append(rotate(lin.x, lin.y, yaw) if obj.kinematics.has_twist else None)
+    if not rows:
+        return out
+    n = len(rows)
+    geometry = np.array([r[1] for r in rows], dtype=np.float64)
+    velocity = None
+    if all(t is not None for t in twists):
+        velocity = np.array(twists, dtype=np.float32).reshape(n, 2)
+    out.boxes = BoxArrays(
+        classes=classes,
+        class_index=np.array([r[0] for r in rows], dtype=np.int32),
+        center=geometry[:, 0:3].astype(np.float32),
+        size=geometry[:, 3:6].astype(np.float32),
+        yaw=np.array([r[2] for r in rows], dtype=np.float32),
+        score=np.array([r[3] for r in rows], dtype=np.float64),
+        velocity=velocity,
+    )
+    return out
+
+
+def _empty(classes: tuple[str, ...]) -> BoxArrays:
+    return BoxArrays(
+        classes=classes,
+        class_index=np.zeros(0, np.int32),
+        center=np.zeros((0, 3), np.float32),
+        size=np.zeros((0, 3), np.float32),
+        yaw=np.zeros(0, np.float32),
+        score=np.zeros(0, np.float64),
+    )
+
+
+def object_uuid(vehicle: str, sensor: str, track_id: int) -> bytes:
+    return uuid.uuid5(uuid.NAMESPACE_URL, f"simpletrack:{vehicle}/{sensor}/{track_id}").bytes
+
+
+def tracks_to_tracked_objects(
+    tracks: TrackArrays,
+    *,
+    vehicle: str,
+    sensor: str,
+    stamp_ns: int,
+    frame_id: str,
+    labels: LabelMap,
+) -> TrackedObjects:
+    names = tracks.classes
+    objects = []
+    for i in range(len(tracks)):
+        cx, cy, cz = (float(v) for v in tracks.center[i])
+        length, width, height = (float(v) for v in tracks.size[i])
+        yaw = float(tracks.yaw[i])
+        vx, vy, vz = (float(v) for v in tracks.velocity[i])
+        tx, ty = rotate(vx, vy, -yaw)
+        kinematics = TrackedObjectKinematics(
+            pose_with_covariance=PoseWithCovariance(Pose(Point(cx, cy, cz), quaternion_of(yaw))),
+            twist_with_covariance=TwistWithCovariance(Twist(linear=Vector3(tx, ty, vz))),
+            orientation_availability=OrientationAvailability.AVAILABLE,
+        )
+        label = labels.label_of(names[int(tracks.class_index[i])])
+        objects.append(
+            TrackedObject(
+                object_id=UUID(object_uuid(vehicle, sensor, int(tracks.id[i]))),
+                existence_probability=float(tracks.score[i]),
+                classification=(ObjectClassification(label, 1.0),),
+                kinematics=kinematics,
+                shape=Shape(ShapeType.BOUNDING_BOX, dimensions=Vector3(length, width, height)),
+            )
+        )
+    return TrackedObjects(Header(time_of(stamp_ns), frame_id), tuple(objects))
