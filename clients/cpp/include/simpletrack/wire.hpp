@@ -1,0 +1,14 @@
+// SimpleTrack wire codec, schema version 1 (schemas/README.md): header-only, C++17,
+// on msgpack-c++ (4.x or newer).
+//
+//   #include <simpletrack/wire.hpp>
+//   namespace wire = simpletrack::wire;
+//   std::vector<std::uint8_t> bytes = wire::encode(frame);        // DetectionFrame, TrackFrame, FrameError
+//   auto tracks = wire::decode_track_frame(data, size);           // Result<TrackFrame>
+//   if (!tracks) log(tracks.error().message());                   // e.g. "column_length at tracks.yaw: ..."
+#pragma once
+
+#include "simpletrack/wire/bytes.hpp"
+#include "simpletrack/wire/decode.hpp"
+#include "simpletrack/wire/encode.hpp"
+#include "simpletrack/wire/messages.hpp"

@@ -1,0 +1,242 @@
+// The wire messages of schemas/README.md (schema version 1) as plain C++17 structs, the
+// reasons a message is refused, and the result type the decoders return.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <variant>
+#include <vector>
+
+namespace simpletrack::wire {
+
+inline constexpr int kSchemaVersion = 1;
+
+// Ranges and caps of the contract ("DetectionFrame", "Bounds" in schemas/README.md).
+inline constexpr std::uint64_t kInt64Max = 9223372036854775807ULL;
+inline constexpr std::uint64_t kInt32Max = 2147483647ULL;
+inline constexpr std::size_t kMaxClasses = 1024;
+inline constexpr std::size_t kMaxNoticeSeqs = 1024;
+inline constexpr double kMaxCoordinateM = 1e5;  // |x|, |y|, |z| of a centre, a pose's translation
+inline constexpr double kMaxSizeM = 100.0;      // each of l, w, h
+inline constexpr double kMaxYawRad = 1e4;
+inline constexpr double kMaxSpeedMps = 200.0;  // |vx|, |vy|
+inline constexpr double kPoseTolerance = 1e-4;  // rotation orthonormal to this, last row 0 0 0 1
+
+// The `reason` values of a FrameError, in the order of schemas/reasons.py (the strings travel).
+enum class Reason {
+  too_large,
+  malformed,
+  wrong_version,
+  missing_field,
+  extra_field,
+  wrong_type,
+  invalid_value,
+  column_length,
+  non_finite,
+  non_positive_size,
+  unknown_class,
+  key_mismatch,
+  out_of_order,
+  seq_not_increasing,
+  duplicate_seq,
+  too_many_sensors,
+  dropped_queue_full,
+  dropped_shutdown,
+  missed,
+  internal_error,
+};
+
+inline constexpr std::array<std::string_view, 20> kReasonNames = {
+    "too_large",          "malformed",       "wrong_version",    "missing_field",
+    "extra_field",        "wrong_type",      "invalid_value",    "column_length",
+    "non_finite",         "non_positive_size", "unknown_class",  "key_mismatch",
+    "out_of_order",       "seq_not_increasing", "duplicate_seq", "too_many_sensors",
+    "dropped_queue_full", "dropped_shutdown", "missed",          "internal_error",
+};
+
+constexpr std::string_view to_string(Reason r) { return kReasonNames[static_cast<std::size_t>(r)]; }
+
+inline std::optional<Reason> parse_reason(std::string_view name) {
+  for (std::size_t i = 0; i < kReasonNames.size(); ++i) {
+    if (kReasonNames[i] == name) return static_cast<Reason>(i);
+  }
+  return std::nullopt;
+}
+
+// Codes of TrackColumns::state.
+enum class TrackState : std::int32_t { tentative = 0, confirmed = 1, coasting = 2 };
+
+using Vec2f = std::array<float, 2>;
+using Vec3f = std::array<float, 3>;
+using Pose = std::array<double, 16>;  // sensor -> world, 4x4 row-major
+
+// N detection boxes, one vector per column; N is class_index.size() and every column must
+// have N rows (the encoder refuses anything else).
+struct BoxColumns {
+  std::vector<std::string> classes;  // this frame's class table
+  std::vector<std::int32_t> class_index;
+  std::vector<Vec3f> center;  // x, y, z of the box's geometric centre, metres
+  std::vector<Vec3f> size;    // l, w, h
+  std::vector<float> yaw;     // heading about +z from +x, radians
+  std::vector<double> score;
+  std::optional<std::vector<Vec2f>> velocity;  // vx, vy in m/s
+
+  std::size_t count() const { return class_index.size(); }
+};
+
+// `<prefix>/<vehicle>/<sensor>/detections`
+struct DetectionFrame {
+  std::string vehicle;
+  std::string sensor;
+  std::uint64_t seq = 0;
+  std::uint64_t stamp_ns = 0;
+  std::string frame_id;
+  std::optional<Pose> pose;
+  bool key_frame = true;
+  std::optional<std::uint64_t> session_id;
+  BoxColumns boxes;
+};
+
+struct TrackColumns {
+  std::vector<std::string> classes;  // the service's class table
+  std::vector<std::int64_t> id;
+  std::vector<std::int32_t> class_index;
+  std::vector<Vec3f> center;
+  std::vector<Vec3f> size;
+  std::vector<float> yaw;
+  std::vector<double> score;
+  std::vector<Vec3f> velocity;  // vx, vy, vz
+  std::vector<std::int32_t> state;  // TrackState codes
+  std::vector<std::int32_t> hits;
+  std::vector<std::int32_t> age;
+  std::vector<std::int32_t> time_since_update;
+
+  std::size_t count() const { return id.size(); }
+};
+
+// `<prefix>/<vehicle>/<sensor>/tracks`
+struct TrackFrame {
+  std::string vehicle;
+  std::string sensor;
+  std::uint64_t seq = 0;
+  std::uint64_t stamp_ns = 0;
+  std::string frame_id;
+  std::optional<Pose> pose;
+  bool key_frame = true;
+  std::string instance;
+  std::uint64_t received_ns = 0;
+  std::uint64_t published_ns = 0;
+  TrackColumns tracks;
+};
+
+// `<prefix>/<vehicle>/<sensor>/errors`
+struct FrameError {
+  std::string vehicle;
+  std::string sensor;
+  std::optional<std::uint64_t> seq;
+  std::optional<std::uint64_t> stamp_ns;
+  Reason reason = Reason::internal_error;
+  std::optional<std::string> field;  // dotted path, e.g. "boxes.size"
+  std::string detail;                // for people, not for parsing
+  std::string instance;
+  std::uint64_t received_ns = 0;
+  // Drop notices only: the seq of every frame the notice stands for (nullopt: unreadable).
+  std::optional<std::vector<std::optional<std::uint64_t>>> seqs;
+};
+
+inline bool operator==(const BoxColumns& a, const BoxColumns& b) {
+  return a.classes == b.classes && a.class_index == b.class_index && a.center == b.center &&
+         a.size == b.size && a.yaw == b.yaw && a.score == b.score && a.velocity == b.velocity;
+}
+inline bool operator==(const DetectionFrame& a, const DetectionFrame& b) {
+  return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
+         a.stamp_ns == b.stamp_ns && a.frame_id == b.frame_id && a.pose == b.pose &&
+         a.key_frame == b.key_frame && a.session_id == b.session_id && a.boxes == b.boxes;
+}
+inline bool operator==(const TrackColumns& a, const TrackColumns& b) {
+  return a.classes == b.classes && a.id == b.id && a.class_index == b.class_index &&
+         a.center == b.center && a.size == b.size && a.yaw == b.yaw && a.score == b.score &&
+         a.velocity == b.velocity && a.state == b.state && a.hits == b.hits && a.age == b.age &&
+         a.time_since_update == b.time_since_update;
+}
+inline bool operator==(const TrackFrame& a, const TrackFrame& b) {
+  return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
+         a.stamp_ns == b.stamp_ns && a.frame_id == b.frame_id && a.pose == b.pose &&
+         a.key_frame == b.key_frame && a.instance == b.instance &&
+         a.received_ns == b.received_ns && a.published_ns == b.published_ns &&
+         a.tracks == b.tracks;
+}
+inline bool operator==(const FrameError& a, const FrameError& b) {
+  return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
+         a.stamp_ns == b.stamp_ns && a.reason == b.reason && a.field == b.field &&
+         a.detail == b.detail && a.instance == b.instance && a.received_ns == b.received_ns &&
+         a.seqs == b.seqs;
+}
+inline bool operator!=(const BoxColumns& a, const BoxColumns& b) { return !(a == b); }
+inline bool operator!=(const DetectionFrame& a, const DetectionFrame& b) { return !(a == b); }
+inline bool operator!=(const TrackColumns& a, const TrackColumns& b) { return !(a == b); }
+inline bool operator!=(const TrackFrame& a, const TrackFrame& b) { return !(a == b); }
+inline bool operator!=(const FrameError& a, const FrameError& b) { return !(a == b); }
+
+// Why a payload was refused: the reason and dotted field the service would report, and the
+// frame's seq/stamp_ns when they could still be read (detection and track frames only).
+struct Rejection {
+  Reason reason = Reason::internal_error;
+  std::optional<std::string> field;
+  std::string detail;
+  std::optional<std::uint64_t> seq;
+  std::optional<std::uint64_t> stamp_ns;
+
+  // One line for a log: "invalid_value at boxes.center: |value| over 100000 m in row 2".
+  std::string message() const {
+    std::string out(to_string(reason));
+    if (field) out += " at " + *field;
+    return out + ": " + detail;
+  }
+};
+
+struct DecodeLimits {
+  std::size_t max_bytes = std::size_t{8} << 20;  // the service's default payload cap
+  std::size_t max_boxes = 10000;                  // the service's default max_boxes
+};
+
+// What a decoder returns: the message, or why it was refused. Never both, never neither.
+template <class T>
+class Result {
+ public:
+  Result(T value) : v_(std::move(value)) {}              // NOLINT: implicit on purpose
+  Result(Rejection error) : v_(std::move(error)) {}      // NOLINT
+  bool ok() const { return v_.index() == 0; }
+  explicit operator bool() const { return ok(); }
+  const T& value() const& { return ok() ? std::get<0>(v_) : fail(); }
+  T value() && {
+    if (!ok()) fail();
+    return std::get<0>(std::move(v_));
+  }
+  const T* operator->() const { return &value(); }
+  const Rejection& error() const {
+    if (ok()) throw std::logic_error("Result::error() on a decoded message");
+    return std::get<1>(v_);
+  }
+
+ private:
+  [[noreturn]] const T& fail() const {
+    throw std::logic_error("Result::value() on a rejected message: " + std::get<1>(v_).message());
+  }
+  std::variant<T, Rejection> v_;
+};
+
+// The encoders' complaint about a message the decoders would refuse by its structure
+// (a bad id, mismatched column lengths, an overlong class table ...).
+class EncodeError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+}  // namespace simpletrack::wire
