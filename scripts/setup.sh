@@ -26,3 +26,10 @@ if [ "${CI:-}" = "true" ] && ! command -v prometheus >/dev/null 2>&1 && [ "$(id 
   (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq prometheus >/dev/null) \
     || echo "setup: prometheus could not be installed; its tests will skip" >&2
 fi
+# Headers the C++ client builds and tests with (tests/native); optional outside CI.
+if [ "${CI:-}" = "true" ] && [ "$(id -u)" = "0" ] &&
+   { [ ! -f /usr/include/msgpack.hpp ] || [ ! -f /usr/include/nlohmann/json.hpp ]; }; then
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+     libmsgpack-cxx-dev nlohmann-json3-dev >/dev/null 2>&1) \
+    || echo "setup: msgpack-c++/nlohmann-json headers could not be installed; tests/native will fail" >&2
+fi
