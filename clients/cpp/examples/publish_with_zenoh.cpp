@@ -82,7 +82,8 @@ class Publisher {
     const std::string encoding = "application/msgpack";
     const auto path = dir_ / (std::to_string(puts_++) + ".msgpack");
     std::ofstream(path, std::ios::binary)
-        .write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+        .write(reinterpret_cast<const char*>(bytes.data()),
+               static_cast<std::streamsize>(bytes.size()));
     std::printf("put %s (%s, %zu bytes) -> %s\n", key.c_str(), encoding.c_str(), bytes.size(),
                 path.string().c_str());
   }
@@ -126,7 +127,8 @@ int run(int argc, char** argv) {
     const wire::DetectionFrame frame = detect(static_cast<std::uint64_t>(i), now_ns());
     // Refusing locally what the service would refuse saves a round trip to its error topic.
     if (const auto problem = wire::validate(frame)) {
-      std::fprintf(stderr, "publish_with_zenoh: frame %d not sent: %s\n", i, problem->message().c_str());
+      std::fprintf(stderr, "publish_with_zenoh: frame %d not sent: %s\n", i,
+                   problem->message().c_str());
       continue;
     }
     publisher.put(key, wire::encode(frame));

@@ -55,7 +55,8 @@ void key(Packer& pk, const std::string& k) {
 
 wire::Rejection refusal(const Bytes& b, const std::vector<std::string>* accepted = nullptr) {
   auto r = wire::decode_detection_frame(b, {}, accepted);
-  if (r) return wire::Rejection{wire::Reason::internal_error, std::string("<accepted>"), "", {}, {}};
+  if (r)
+    return wire::Rejection{wire::Reason::internal_error, std::string("<accepted>"), "", {}, {}};
   return r.error();
 }
 
@@ -63,7 +64,9 @@ bool is(const wire::Rejection& r, wire::Reason reason, const std::optional<std::
   return r.reason == reason && r.field == field;
 }
 
-std::string got(const wire::Rejection& r) { return "got " + r.message(); }
+std::string got(const wire::Rejection& r) {
+  return "got " + r.message();
+}
 
 // The bin of `column` in the encoded boxes map (found by its key; the bin follows it).
 Bytes column_bytes(const Bytes& frame, const std::string& column) {
@@ -73,7 +76,8 @@ Bytes column_bytes(const Bytes& frame, const std::string& column) {
   if (at == std::string::npos) return {};
   const std::size_t bin = at + needle.size();
   const std::size_t len = frame[bin + 1];  // bin 8: 0xc4, one length byte
-  return Bytes(frame.begin() + static_cast<long>(bin + 2), frame.begin() + static_cast<long>(bin + 2 + len));
+  return Bytes(frame.begin() + static_cast<long>(bin + 2),
+               frame.begin() + static_cast<long>(bin + 2 + len));
 }
 
 void columns_are_little_endian() {
@@ -123,7 +127,9 @@ std::string encode_error(F mutate) {
   return "<encoded>";
 }
 
-bool starts(const std::string& s, const std::string& prefix) { return s.rfind(prefix, 0) == 0; }
+bool starts(const std::string& s, const std::string& prefix) {
+  return s.rfind(prefix, 0) == 0;
+}
 
 void encoder_refuses_what_decoders_refuse() {
   std::string m = encode_error([](auto& f) { f.vehicle = "veh/1"; });
@@ -146,20 +152,35 @@ void encoder_refuses_what_decoders_refuse() {
 
 void map_corners() {
   // A repeated key keeps its last value (a Python dict built from the pairs).
-  auto r = wire::decode_detection_frame(frame_with(1, [](Packer& pk) { key(pk, "seq"); pk.pack_uint64(43); }));
+  auto r = wire::decode_detection_frame(frame_with(1, [](Packer& pk) {
+    key(pk, "seq");
+    pk.pack_uint64(43);
+  }));
   CHECK(r.ok() && r.value().seq == 43);
-  Bytes b = frame_with(1, [](Packer& pk) { key(pk, "seq"); pk.pack_int64(-1); });
+  Bytes b = frame_with(1, [](Packer& pk) {
+    key(pk, "seq");
+    pk.pack_int64(-1);
+  });
   CHECK_MSG(is(refusal(b), wire::Reason::invalid_value, "seq"), got(refusal(b)));
   CHECK(!refusal(b).seq && refusal(b).stamp_ns == 1'700'000'000'000'000'000ULL);
   // A bin key is named as the reference decoder names it.
-  b = frame_with(1, [](Packer& pk) { pk.pack_bin(5).pack_bin_body("speed", 5); pk.pack_nil(); });
+  b = frame_with(1, [](Packer& pk) {
+    pk.pack_bin(5).pack_bin_body("speed", 5);
+    pk.pack_nil();
+  });
   CHECK_MSG(is(refusal(b), wire::Reason::invalid_value, "b'speed'"), got(refusal(b)));
   CHECK(refusal(b).seq == 42u);
   // Bad UTF-8 or an int key anywhere, even in a value nobody reads, spoils the payload.
-  b = frame_with(1, [](Packer& pk) { key(pk, "note"); pk.pack_str(2).pack_str_body("\xed\xa0", 2); });
+  b = frame_with(1, [](Packer& pk) {
+    key(pk, "note");
+    pk.pack_str(2).pack_str_body("\xed\xa0", 2);
+  });
   CHECK_MSG(is(refusal(b), wire::Reason::malformed, "payload"), got(refusal(b)));
   CHECK(!refusal(b).seq);
-  b = frame_with(1, [](Packer& pk) { key(pk, "note"); pk.pack_map(1).pack_uint8(1).pack_nil(); });
+  b = frame_with(1, [](Packer& pk) {
+    key(pk, "note");
+    pk.pack_map(1).pack_uint8(1).pack_nil();
+  });
   CHECK_MSG(is(refusal(b), wire::Reason::malformed, "payload"), got(refusal(b)));
   b = wire::encode(two_boxes());
   b.push_back(0xc0);
@@ -193,13 +214,16 @@ void pose_checks() {
   CHECK(r.ok());
   wire::Pose p = eye;
   p[10] = -1;  // a reflection
-  CHECK_MSG(is(refusal(with_pose(p)), wire::Reason::invalid_value, "pose"), got(refusal(with_pose(p))));
+  CHECK_MSG(is(refusal(with_pose(p)), wire::Reason::invalid_value, "pose"),
+            got(refusal(with_pose(p))));
   p = eye;
   p[3] = 2e5;
-  CHECK_MSG(is(refusal(with_pose(p)), wire::Reason::invalid_value, "pose"), got(refusal(with_pose(p))));
+  CHECK_MSG(is(refusal(with_pose(p)), wire::Reason::invalid_value, "pose"),
+            got(refusal(with_pose(p))));
   p = eye;
   p[5] = std::numeric_limits<double>::quiet_NaN();
-  CHECK_MSG(is(refusal(with_pose(p)), wire::Reason::non_finite, "pose"), got(refusal(with_pose(p))));
+  CHECK_MSG(is(refusal(with_pose(p)), wire::Reason::non_finite, "pose"),
+            got(refusal(with_pose(p))));
   // float32 and int entries are numbers too (msgpack-c++ packs the integral ones as ints).
   const float c = 0.6f, s = 0.8f;
   const float rot[16] = {c, -s, 0, 0.5f, s, c, 0, -0.25f, 0, 0, 1, 2, 0, 0, 0, 1};
@@ -220,7 +244,8 @@ void pose_checks() {
   b = frame_with(1, [](Packer& pk) {
     key(pk, "pose");
     pk.pack_array(16);
-    for (int i = 0; i < 16; ++i) i == 4 ? pk.pack_str(1).pack_str_body("x", 1) : pk.pack_double(0.5);
+    for (int i = 0; i < 16; ++i)
+      i == 4 ? pk.pack_str(1).pack_str_body("x", 1) : pk.pack_double(0.5);
   });
   CHECK_MSG(is(refusal(b), wire::Reason::wrong_type, "pose.4"), got(refusal(b)));
 }
@@ -236,13 +261,16 @@ void class_tables() {
   CHECK(!wire::validate(f, {}, &cars_only));
   f = two_boxes();
   f.boxes.size[1][2] = 0.0f;
-  CHECK_MSG(is(*wire::validate(f), wire::Reason::non_positive_size, "boxes.size"), got(*wire::validate(f)));
+  CHECK_MSG(is(*wire::validate(f), wire::Reason::non_positive_size, "boxes.size"),
+            got(*wire::validate(f)));
   f = two_boxes();
   f.boxes.yaw[0] = 2e4f;
-  CHECK_MSG(is(*wire::validate(f), wire::Reason::invalid_value, "boxes.yaw"), got(*wire::validate(f)));
+  CHECK_MSG(is(*wire::validate(f), wire::Reason::invalid_value, "boxes.yaw"),
+            got(*wire::validate(f)));
   f = two_boxes();
   f.boxes.velocity = std::vector<wire::Vec2f>{{0, 0}, {0, std::numeric_limits<float>::infinity()}};
-  CHECK_MSG(is(*wire::validate(f), wire::Reason::non_finite, "boxes.velocity"), got(*wire::validate(f)));
+  CHECK_MSG(is(*wire::validate(f), wire::Reason::non_finite, "boxes.velocity"),
+            got(*wire::validate(f)));
 }
 
 void caps() {
@@ -259,9 +287,13 @@ void frame_errors() {
   e.detail = "3 frames", e.instance = "simpletrack-a", e.received_ns = 5;
   Bytes b = wire::encode(e);
   // A reason from a newer service is refused, not misread.
-  const std::string missed = "\xa6" "missed";
+  const std::string missed =
+      "\xa6"
+      "missed";
   std::string s(b.begin(), b.end());
-  s.replace(s.find(missed), missed.size(), "\xa6" "future");
+  s.replace(s.find(missed), missed.size(),
+            "\xa6"
+            "future");
   const auto r = wire::decode_frame_error(Bytes(s.begin(), s.end()));
   CHECK(!r.ok() && is(r.error(), wire::Reason::invalid_value, "reason"));
   // A Result holds one or the other, loudly.

@@ -36,7 +36,8 @@ std::vector<std::array<float, K>> rows(const json& j) {
   std::vector<std::array<float, K>> out;
   for (const auto& row : j) {
     std::array<float, K> r{};
-    if (row.size() != K) throw std::runtime_error("row of " + std::to_string(row.size()) + " values");
+    if (row.size() != K)
+      throw std::runtime_error("row of " + std::to_string(row.size()) + " values");
     for (std::size_t k = 0; k < K; ++k) r[k] = static_cast<float>(row[k].get<double>());
     out.push_back(r);
   }
@@ -110,13 +111,16 @@ wire::FrameError frame_error(const json& d) {
   if (d.contains("seqs") && !d["seqs"].is_null()) {
     e.seqs.emplace();
     for (const auto& s : d["seqs"]) {
-      e.seqs->push_back(s.is_null() ? std::nullopt : std::optional<std::uint64_t>(s.get<std::uint64_t>()));
+      e.seqs->push_back(s.is_null() ? std::nullopt
+                                    : std::optional<std::uint64_t>(s.get<std::uint64_t>()));
     }
   }
   return e;
 }
 
-std::string show(const wire::Rejection& r) { return r.message(); }
+std::string show(const wire::Rejection& r) {
+  return r.message();
+}
 
 // Decode, compare with the JSON, and re-encode both the JSON's message and the decoded one.
 template <class Message, class Decode, class FromJson>
@@ -131,9 +135,8 @@ void check_vector(const std::string& name, const json& j, const std::vector<std:
     if (got.ok()) return;
     CHECK_MSG(std::string(wire::to_string(got.error().reason)) == reason,
               name + ": got " + show(got.error()) + ", expected " + reason);
-    CHECK_MSG(got.error().field == field,
-              name + ": field " + got.error().field.value_or("null") + ", expected " +
-                  field.value_or("null"));
+    CHECK_MSG(got.error().field == field, name + ": field " + got.error().field.value_or("null") +
+                                              ", expected " + field.value_or("null"));
     return;
   }
   CHECK_MSG(got.ok(), name + ": refused: " + (got.ok() ? "" : show(got.error())));
@@ -171,7 +174,8 @@ int main(int argc, char** argv) {
       valid += j.at("valid").get<bool>() ? 1 : 0;
       if (message == "DetectionFrame") {
         check_vector<wire::DetectionFrame>(
-            name, j, bytes, [](const auto& b) { return wire::decode_detection_frame(b); }, detection);
+            name, j, bytes, [](const auto& b) { return wire::decode_detection_frame(b); },
+            detection);
       } else if (message == "TrackFrame") {
         check_vector<wire::TrackFrame>(
             name, j, bytes, [](const auto& b) { return wire::decode_track_frame(b); }, track);

@@ -43,7 +43,8 @@ std::vector<std::array<float, K>> rows(const json& j, const char* key) {
                                " values, expected " + std::to_string(K));
     }
     std::array<float, K> r{};
-    for (std::size_t k = 0; k < K; ++k) r[k] = static_cast<float>(row[k].get<double>());  // as numpy's float32 cast
+    for (std::size_t k = 0; k < K; ++k)
+      r[k] = static_cast<float>(row[k].get<double>());  // as numpy's float32 cast
     out.push_back(r);
   }
   return out;
@@ -52,9 +53,9 @@ std::vector<std::array<float, K>> rows(const json& j, const char* key) {
 wire::DetectionFrame from_file(const std::string& path) {
   json j;
   std::ifstream(path) >> j;
-  static const std::set<std::string> known = {"vehicle", "sensor", "seq", "stamp_ns", "frame_id",
-                                              "classes", "class_index", "center", "size", "yaw",
-                                              "score", "velocity"};
+  static const std::set<std::string> known = {"vehicle",  "sensor",  "seq",         "stamp_ns",
+                                              "frame_id", "classes", "class_index", "center",
+                                              "size",     "yaw",     "score",       "velocity"};
   for (const auto& item : j.items()) {
     // A key this tool does not reproduce would make the comparison silently unfair.
     if (!known.count(item.key())) throw std::runtime_error("unknown key '" + item.key() + "'");
@@ -79,7 +80,8 @@ int main(int argc, char** argv) {
   try {
     const bool file = std::ifstream(path).good();
     const wire::DetectionFrame frame = file ? from_file(path) : built_in();
-    std::fprintf(stderr, "encode_fixture: boxes from %s\n", file ? path.c_str() : "built-in constants");
+    std::fprintf(stderr, "encode_fixture: boxes from %s\n",
+                 file ? path.c_str() : "built-in constants");
     for (const std::uint8_t b : wire::encode(frame)) std::printf("%02x", b);
     std::printf("\n");
     return 0;

@@ -68,10 +68,18 @@ int main() {
     const unsigned char* p = in.data() + at;
     at += n;
     switch (kind) {
-      case 'd': print(wire::decode_detection_frame(p, n)); break;
-      case 'D': print(wire::decode_detection_frame(p, n, {}, &accepted)); break;
-      case 't': print(wire::decode_track_frame(p, n)); break;
-      case 'e': print(wire::decode_frame_error(p, n)); break;
+      case 'd':
+        print(wire::decode_detection_frame(p, n));
+        break;
+      case 'D':
+        print(wire::decode_detection_frame(p, n, {}, &accepted));
+        break;
+      case 't':
+        print(wire::decode_track_frame(p, n));
+        break;
+      case 'e':
+        print(wire::decode_frame_error(p, n));
+        break;
       default:
         std::cerr << "wire_decode: unknown kind '" << kind << "'\n";
         return 2;

@@ -3,9 +3,10 @@
 //
 //   #include <simpletrack/wire.hpp>
 //   namespace wire = simpletrack::wire;
-//   std::vector<std::uint8_t> bytes = wire::encode(frame);        // DetectionFrame, TrackFrame, FrameError
-//   auto tracks = wire::decode_track_frame(data, size);           // Result<TrackFrame>
-//   if (!tracks) log(tracks.error().message());                   // e.g. "column_length at tracks.yaw: ..."
+//   std::vector<std::uint8_t> bytes = wire::encode(frame);        // DetectionFrame, TrackFrame,
+//   FrameError auto tracks = wire::decode_track_frame(data, size);           // Result<TrackFrame>
+//   if (!tracks) log(tracks.error().message());                   // e.g. "column_length at
+//   tracks.yaw: ..."
 #pragma once
 
 #include "simpletrack/wire/bytes.hpp"

@@ -46,23 +46,36 @@ struct Reject {
   throw Reject{reason, std::move(field), std::move(detail)};
 }
 
-inline std::string_view text_of(const Obj& o) { return {o.via.str.ptr, o.via.str.size}; }
-inline std::string_view bytes_of(const Obj& o) { return {o.via.bin.ptr, o.via.bin.size}; }
+inline std::string_view text_of(const Obj& o) {
+  return {o.via.str.ptr, o.via.str.size};
+}
+inline std::string_view bytes_of(const Obj& o) {
+  return {o.via.bin.ptr, o.via.bin.size};
+}
 
 // The name Python gives the decoded value's type (the reference decoder's details use it).
 inline const char* type_name(const Obj& o) {
   switch (o.type) {
-    case mt::NIL: return "NoneType";
-    case mt::BOOLEAN: return "bool";
+    case mt::NIL:
+      return "NoneType";
+    case mt::BOOLEAN:
+      return "bool";
     case mt::POSITIVE_INTEGER:
-    case mt::NEGATIVE_INTEGER: return "int";
+    case mt::NEGATIVE_INTEGER:
+      return "int";
     case mt::FLOAT32:
-    case mt::FLOAT64: return "float";
-    case mt::STR: return "str";
-    case mt::BIN: return "bytes";
-    case mt::ARRAY: return "list";
-    case mt::MAP: return "dict";
-    default: return "ExtType";
+    case mt::FLOAT64:
+      return "float";
+    case mt::STR:
+      return "str";
+    case mt::BIN:
+      return "bytes";
+    case mt::ARRAY:
+      return "list";
+    case mt::MAP:
+      return "dict";
+    default:
+      return "ExtType";
   }
 }
 
@@ -80,11 +93,13 @@ inline void check_timestamp(const Obj& o) {
   };
   if (n == 4) return;
   if (n == 8) {
-    if ((be32(p) >> 2) > 999999999U) reject(Reason::malformed, "payload", "not msgpack: timestamp nanoseconds over 999999999");
+    if ((be32(p) >> 2) > 999999999U)
+      reject(Reason::malformed, "payload", "not msgpack: timestamp nanoseconds over 999999999");
     return;
   }
   if (n == 12) {
-    if (be32(p) > 999999999U) reject(Reason::malformed, "payload", "not msgpack: timestamp nanoseconds over 999999999");
+    if (be32(p) > 999999999U)
+      reject(Reason::malformed, "payload", "not msgpack: timestamp nanoseconds over 999999999");
     return;
   }
   reject(Reason::malformed, "payload",
@@ -94,14 +109,16 @@ inline void check_timestamp(const Obj& o) {
 inline void check_tree(const Obj& o, std::size_t depth) {
   switch (o.type) {
     case mt::STR:
-      if (!utf8_length(text_of(o))) reject(Reason::malformed, "payload", "not msgpack: a str is not UTF-8");
+      if (!utf8_length(text_of(o)))
+        reject(Reason::malformed, "payload", "not msgpack: a str is not UTF-8");
       return;
     case mt::EXT:
       if (o.via.ext.type() == -1) check_timestamp(o);
       return;
     case mt::ARRAY:
       if (depth >= kMaxDepth) reject(Reason::malformed, "payload", "not msgpack: nested too deep");
-      for (std::uint32_t i = 0; i < o.via.array.size; ++i) check_tree(o.via.array.ptr[i], depth + 1);
+      for (std::uint32_t i = 0; i < o.via.array.size; ++i)
+        check_tree(o.via.array.ptr[i], depth + 1);
       return;
     case mt::MAP:
       if (depth >= kMaxDepth) reject(Reason::malformed, "payload", "not msgpack: nested too deep");
@@ -122,7 +139,9 @@ inline void check_tree(const Obj& o, std::size_t depth) {
 
 // Strings and bins point into the payload instead of being copied: the payload outlives the
 // unpacked tree, which lives only inside a decoder.
-inline bool reference_all(mt::object_type, std::size_t, void*) { return true; }
+inline bool reference_all(mt::object_type, std::size_t, void*) {
+  return true;
+}
 
 inline msgpack::object_handle unpack(const void* data, std::size_t size,
                                      const DecodeLimits& limits) {
@@ -149,7 +168,8 @@ inline msgpack::object_handle unpack(const void* data, std::size_t size,
   }
   check_tree(handle.get(), 0);
   if (handle.get().type != mt::MAP) {
-    reject(Reason::malformed, "payload", std::string("expected a map, got ") + type_name(handle.get()));
+    reject(Reason::malformed, "payload",
+           std::string("expected a map, got ") + type_name(handle.get()));
   }
   return handle;
 }
@@ -221,9 +241,11 @@ inline std::uint64_t int_value(const Obj& v, const std::string& path, std::uint6
   if (v.type == mt::NEGATIVE_INTEGER) {
     reject(Reason::invalid_value, path, "Input should be greater than or equal to 0");
   }
-  if (v.type != mt::POSITIVE_INTEGER) reject(Reason::wrong_type, path, "Input should be a valid integer");
+  if (v.type != mt::POSITIVE_INTEGER)
+    reject(Reason::wrong_type, path, "Input should be a valid integer");
   if (v.via.u64 > hi) {
-    reject(Reason::invalid_value, path, "Input should be less than or equal to " + std::to_string(hi));
+    reject(Reason::invalid_value, path,
+           "Input should be less than or equal to " + std::to_string(hi));
   }
   return v.via.u64;
 }
@@ -249,11 +271,13 @@ inline std::string text_value(const Obj& v, const std::string& path, std::size_t
   const std::size_t n = *utf8_length(s);  // the whole payload was checked to be UTF-8
   if (n < lo) {
     reject(Reason::invalid_value, path,
-           "String should have at least " + std::to_string(lo) + (lo == 1 ? " character" : " characters"));
+           "String should have at least " + std::to_string(lo) +
+               (lo == 1 ? " character" : " characters"));
   }
   if (n > hi) {
     reject(Reason::invalid_value, path,
-           "String should have at most " + std::to_string(hi) + (hi == 1 ? " character" : " characters"));
+           "String should have at most " + std::to_string(hi) +
+               (hi == 1 ? " character" : " characters"));
   }
   return std::string(s);
 }
@@ -277,8 +301,8 @@ inline void check_list(const Obj& v, const std::string& path, std::size_t max_it
   if (v.type != mt::ARRAY) reject(Reason::wrong_type, path, "Input should be a valid list");
   if (v.via.array.size > max_items) {
     reject(Reason::invalid_value, path,
-           "List should have at most " + std::to_string(max_items) + " items after validation, not " +
-               std::to_string(v.via.array.size));
+           "List should have at most " + std::to_string(max_items) +
+               " items after validation, not " + std::to_string(v.via.array.size));
   }
 }
 
@@ -293,10 +317,18 @@ inline std::optional<Pose> pose_field(const Fields& m) {
     const Obj& x = a.ptr[i];
     switch (x.type) {
       case mt::FLOAT32:
-      case mt::FLOAT64: pose[i] = x.via.f64; break;
-      case mt::POSITIVE_INTEGER: pose[i] = static_cast<double>(x.via.u64); break;
-      case mt::NEGATIVE_INTEGER: pose[i] = static_cast<double>(x.via.i64); break;
-      default: reject(Reason::wrong_type, path + "." + std::to_string(i), "Input should be a valid number");
+      case mt::FLOAT64:
+        pose[i] = x.via.f64;
+        break;
+      case mt::POSITIVE_INTEGER:
+        pose[i] = static_cast<double>(x.via.u64);
+        break;
+      case mt::NEGATIVE_INTEGER:
+        pose[i] = static_cast<double>(x.via.i64);
+        break;
+      default:
+        reject(Reason::wrong_type, path + "." + std::to_string(i),
+               "Input should be a valid number");
     }
   }
   if (a.size < 16) {
@@ -399,7 +431,8 @@ inline void check_pose(const Pose& p) {
   for (const double v : p) {
     if (!std::isfinite(v)) reject(Reason::non_finite, "pose", "NaN or inf in the pose");
   }
-  double err = std::max({std::fabs(p[12]), std::fabs(p[13]), std::fabs(p[14]), std::fabs(p[15] - 1.0)});
+  double err =
+      std::max({std::fabs(p[12]), std::fabs(p[13]), std::fabs(p[14]), std::fabs(p[15] - 1.0)});
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < 3; ++j) {
       double dot = 0;  // (R R^T)[i][j]
@@ -504,13 +537,15 @@ inline Result<DetectionFrame> decode_detection_frame(
     const auto score = bin_value(required(boxes, "score"), "boxes.score");
     const Obj* velocity = optional(boxes, "velocity");
     const std::string_view velocity_bin = velocity ? bin_value(*velocity, "boxes.velocity") : "";
-    boxes.refuse_unknown({"count", "classes", "class_index", "center", "size", "yaw", "score", "velocity"});
-    top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id", "pose",
-                        "key_frame", "session_id", "boxes"});
+    boxes.refuse_unknown(
+        {"count", "classes", "class_index", "center", "size", "yaw", "score", "velocity"});
+    top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
+                        "pose", "key_frame", "session_id", "boxes"});
 
     if (count > limits.max_boxes) {
-      reject(Reason::too_large, "boxes.count",
-             std::to_string(count) + " rows exceeds the cap of " + std::to_string(limits.max_boxes));
+      reject(
+          Reason::too_large, "boxes.count",
+          std::to_string(count) + " rows exceeds the cap of " + std::to_string(limits.max_boxes));
     }
     b.class_index = values_of<std::int32_t>(class_index, count, "boxes.class_index");
     b.center = rows_of<float, 3>(center, count, "boxes.center");
@@ -527,7 +562,8 @@ inline Result<DetectionFrame> decode_detection_frame(
     }
     for (std::size_t i = 0; i < count; ++i) {
       for (const float v : b.size[i]) {
-        if (!(v > 0)) reject(Reason::non_positive_size, "boxes.size", "size <= 0 in row " + std::to_string(i));
+        if (!(v > 0))
+          reject(Reason::non_positive_size, "boxes.size", "size <= 0 in row " + std::to_string(i));
       }
     }
     check_bound(b.center, kMaxCoordinateM, "boxes.center", "m");
@@ -581,20 +617,21 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     TrackColumns& t = f.tracks;
     t.classes = classes_field(tracks);
     static constexpr std::string_view kColumns[] = {
-        "id", "class_index", "center", "size", "yaw", "score", "velocity", "state", "hits", "age",
-        "time_since_update"};
+        "id",   "class_index", "center",           "size", "yaw", "score", "velocity", "state",
+        "hits", "age",         "time_since_update"};
     std::string_view bins[std::size(kColumns)];
     for (std::size_t i = 0; i < std::size(kColumns); ++i) {
       bins[i] = bin_value(required(tracks, kColumns[i]), tracks.path(kColumns[i]));
     }
-    tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw", "score",
-                           "velocity", "state", "hits", "age", "time_since_update"});
-    top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id", "pose",
-                        "key_frame", "instance", "received_ns", "published_ns", "tracks"});
+    tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
+                           "score", "velocity", "state", "hits", "age", "time_since_update"});
+    top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
+                        "pose", "key_frame", "instance", "received_ns", "published_ns", "tracks"});
 
     if (count > limits.max_boxes) {
-      reject(Reason::too_large, "tracks.count",
-             std::to_string(count) + " rows exceeds the cap of " + std::to_string(limits.max_boxes));
+      reject(
+          Reason::too_large, "tracks.count",
+          std::to_string(count) + " rows exceeds the cap of " + std::to_string(limits.max_boxes));
     }
     t.id = values_of<std::int64_t>(bins[0], count, "tracks.id");
     t.class_index = values_of<std::int32_t>(bins[1], count, "tracks.class_index");
@@ -686,9 +723,9 @@ inline Result<FrameError> decode_frame_error(const std::vector<std::uint8_t>& pa
 // Everything the service checks of a frame that this side can check: nullopt when the frame
 // would be accepted (unknown_class only when `accepted_classes` is given). A frame that
 // cannot even be encoded throws EncodeError, as encode() does.
-inline std::optional<Rejection> validate(const DetectionFrame& frame,
-                                         const DecodeLimits& limits = {},
-                                         const std::vector<std::string>* accepted_classes = nullptr) {
+inline std::optional<Rejection> validate(
+    const DetectionFrame& frame, const DecodeLimits& limits = {},
+    const std::vector<std::string>* accepted_classes = nullptr) {
   auto decoded = decode_detection_frame(encode(frame), limits, accepted_classes);
   if (decoded) return std::nullopt;
   return decoded.error();

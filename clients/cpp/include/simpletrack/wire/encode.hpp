@@ -74,7 +74,8 @@ class Writer {
   }
   Writer& bin(const std::vector<std::uint8_t>& b) {
     pk_.pack_bin(static_cast<std::uint32_t>(b.size()));
-    pk_.pack_bin_body(reinterpret_cast<const char*>(b.data()), static_cast<std::uint32_t>(b.size()));
+    pk_.pack_bin_body(reinterpret_cast<const char*>(b.data()),
+                      static_cast<std::uint32_t>(b.size()));
     return *this;
   }
   template <class T>

@@ -25,7 +25,7 @@ inline constexpr std::size_t kMaxNoticeSeqs = 1024;
 inline constexpr double kMaxCoordinateM = 1e5;  // |x|, |y|, |z| of a centre, a pose's translation
 inline constexpr double kMaxSizeM = 100.0;      // each of l, w, h
 inline constexpr double kMaxYawRad = 1e4;
-inline constexpr double kMaxSpeedMps = 200.0;  // |vx|, |vy|
+inline constexpr double kMaxSpeedMps = 200.0;   // |vx|, |vy|
 inline constexpr double kPoseTolerance = 1e-4;  // rotation orthonormal to this, last row 0 0 0 1
 
 // The `reason` values of a FrameError, in the order of schemas/reasons.py (the strings travel).
@@ -53,14 +53,16 @@ enum class Reason {
 };
 
 inline constexpr std::array<std::string_view, 20> kReasonNames = {
-    "too_large",          "malformed",       "wrong_version",    "missing_field",
-    "extra_field",        "wrong_type",      "invalid_value",    "column_length",
-    "non_finite",         "non_positive_size", "unknown_class",  "key_mismatch",
+    "too_large",          "malformed",          "wrong_version", "missing_field",
+    "extra_field",        "wrong_type",         "invalid_value", "column_length",
+    "non_finite",         "non_positive_size",  "unknown_class", "key_mismatch",
     "out_of_order",       "seq_not_increasing", "duplicate_seq", "too_many_sensors",
-    "dropped_queue_full", "dropped_shutdown", "missed",          "internal_error",
+    "dropped_queue_full", "dropped_shutdown",   "missed",        "internal_error",
 };
 
-constexpr std::string_view to_string(Reason r) { return kReasonNames[static_cast<std::size_t>(r)]; }
+constexpr std::string_view to_string(Reason r) {
+  return kReasonNames[static_cast<std::size_t>(r)];
+}
 
 inline std::optional<Reason> parse_reason(std::string_view name) {
   for (std::size_t i = 0; i < kReasonNames.size(); ++i) {
@@ -111,7 +113,7 @@ struct TrackColumns {
   std::vector<Vec3f> size;
   std::vector<float> yaw;
   std::vector<double> score;
-  std::vector<Vec3f> velocity;  // vx, vy, vz
+  std::vector<Vec3f> velocity;      // vx, vy, vz
   std::vector<std::int32_t> state;  // TrackState codes
   std::vector<std::int32_t> hits;
   std::vector<std::int32_t> age;
@@ -168,9 +170,8 @@ inline bool operator==(const TrackColumns& a, const TrackColumns& b) {
 inline bool operator==(const TrackFrame& a, const TrackFrame& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
          a.stamp_ns == b.stamp_ns && a.frame_id == b.frame_id && a.pose == b.pose &&
-         a.key_frame == b.key_frame && a.instance == b.instance &&
-         a.received_ns == b.received_ns && a.published_ns == b.published_ns &&
-         a.tracks == b.tracks;
+         a.key_frame == b.key_frame && a.instance == b.instance && a.received_ns == b.received_ns &&
+         a.published_ns == b.published_ns && a.tracks == b.tracks;
 }
 inline bool operator==(const FrameError& a, const FrameError& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
@@ -178,11 +179,21 @@ inline bool operator==(const FrameError& a, const FrameError& b) {
          a.detail == b.detail && a.instance == b.instance && a.received_ns == b.received_ns &&
          a.seqs == b.seqs;
 }
-inline bool operator!=(const BoxColumns& a, const BoxColumns& b) { return !(a == b); }
-inline bool operator!=(const DetectionFrame& a, const DetectionFrame& b) { return !(a == b); }
-inline bool operator!=(const TrackColumns& a, const TrackColumns& b) { return !(a == b); }
-inline bool operator!=(const TrackFrame& a, const TrackFrame& b) { return !(a == b); }
-inline bool operator!=(const FrameError& a, const FrameError& b) { return !(a == b); }
+inline bool operator!=(const BoxColumns& a, const BoxColumns& b) {
+  return !(a == b);
+}
+inline bool operator!=(const DetectionFrame& a, const DetectionFrame& b) {
+  return !(a == b);
+}
+inline bool operator!=(const TrackColumns& a, const TrackColumns& b) {
+  return !(a == b);
+}
+inline bool operator!=(const TrackFrame& a, const TrackFrame& b) {
+  return !(a == b);
+}
+inline bool operator!=(const FrameError& a, const FrameError& b) {
+  return !(a == b);
+}
 
 // Why a payload was refused: the reason and dotted field the service would report, and the
 // frame's seq/stamp_ns when they could still be read (detection and track frames only).
@@ -203,15 +214,15 @@ struct Rejection {
 
 struct DecodeLimits {
   std::size_t max_bytes = std::size_t{8} << 20;  // the service's default payload cap
-  std::size_t max_boxes = 10000;                  // the service's default max_boxes
+  std::size_t max_boxes = 10000;                 // the service's default max_boxes
 };
 
 // What a decoder returns: the message, or why it was refused. Never both, never neither.
 template <class T>
 class Result {
  public:
-  Result(T value) : v_(std::move(value)) {}              // NOLINT: implicit on purpose
-  Result(Rejection error) : v_(std::move(error)) {}      // NOLINT
+  Result(T value) : v_(std::move(value)) {}          // NOLINT: implicit on purpose
+  Result(Rejection error) : v_(std::move(error)) {}  // NOLINT
   bool ok() const { return v_.index() == 0; }
   explicit operator bool() const { return ok(); }
   const T& value() const& { return ok() ? std::get<0>(v_) : fail(); }
