@@ -28,7 +28,8 @@ inline constexpr double kMaxYawRad = 1e4;
 inline constexpr double kMaxSpeedMps = 200.0;   // |vx|, |vy|
 inline constexpr double kPoseTolerance = 1e-4;  // rotation orthonormal to this, last row 0 0 0 1
 
-// The `reason` values of a FrameError, in the order of schemas/reasons.py (the strings travel).
+// The `reason` values of a FrameError, in the order of simpletrack/wire/reasons.py (the strings
+// travel).
 enum class Reason {
   too_large,
   malformed,
