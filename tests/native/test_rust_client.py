@@ -14,11 +14,17 @@ import pytest
 
 from simpletrack.core.config import preset
 from simpletrack.core.tracker import Tracker
-from simpletrack.wire import BoxArrays, Rejection
-from simpletrack.wire.codec import decode_detection_frame, encode_detection_frame
+from simpletrack.wire import BoxArrays, FrameError, Rejection
+from simpletrack.wire.codec import (
+    decode_detection_frame,
+    decode_message,
+    decode_track_frame,
+    encode_detection_frame,
+)
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
 from tests.native.cargo_build import BUILD_TIMEOUT_S, cargo, example
 from tests.native.fixture_frame import assert_same_frame, reference_payload
+from tests.native.payload_cases import cases
 from tests.service_helpers import start_service
 
 pytestmark = pytest.mark.native
@@ -113,7 +119,9 @@ def test_a_rust_vehicle_is_tracked_as_the_python_core_tracks_it(
     for line in lines:
         centers = np.array(line["tracks"]["center"])
         target = np.array(line["detections"]["center"][0])
-        first_car.append(line["tracks"]["id"][int(np.argmin(np.linalg.norm(centers - target, axis=1)))])
+        first_car.append(
+            line["tracks"]["id"][int(np.argmin(np.linalg.norm(centers - target, axis=1)))]
+        )
     assert len(set(first_car)) == 1, first_car
     assert sorted({i for line in lines for i in line["tracks"]["id"]}) == [0, 1, 2]
 
@@ -134,3 +142,45 @@ def test_the_rust_fixture_frame_decodes_in_python_as_the_python_encoders() -> No
     payload = bytes.fromhex(out.stdout.strip())
     assert_same_frame(payload, "rust")
     assert payload == reference_payload(), "the same frame should be the same bytes"
+
+
+def _python_verdict(kind: str, payload: bytes) -> dict[str, Any]:
+    if kind == "D":
+        r: object = decode_detection_frame(payload)
+    elif kind == "T":
+        r = decode_track_frame(payload)
+    else:
+        r = decode_message(payload, FrameError)
+    if not isinstance(r, Rejection):
+        return {"valid": True}
+    return {
+        "valid": False,
+        "reason": r.reason.value,
+        "field": r.field,
+        "seq": r.seq,
+        "stamp_ns": r.stamp_ns,
+    }
+
+
+@BUILDS
+def test_the_rust_decoders_give_the_python_verdict_on_every_payload() -> None:
+    """Same acceptance, reason, field and (for a refused frame) seq and stamp on thousands
+    of payloads: valid, each field broken in every way, columns at their bounds, damaged."""
+    payloads = cases()
+    verdicts = example("decode_verdicts")
+    stdin = "".join(f"{kind} {payload.hex()}\n" for kind, payload in payloads)
+    out = subprocess.run(
+        [str(verdicts)], input=stdin, capture_output=True, text=True, timeout=120, check=False
+    )
+    assert out.returncode == 0, out.stderr
+    rust = [json.loads(line) for line in out.stdout.splitlines()]
+    assert len(rust) == len(payloads)
+    python = [_python_verdict(kind, payload) for kind, payload in payloads]
+    differ = [
+        (kind, payload.hex()[:120], p, r)
+        for (kind, payload), p, r in zip(payloads, python, rust, strict=True)
+        if p != r
+    ]
+    assert not differ, (len(differ), differ[:5])
+    refused = sum(1 for p in python if not p["valid"])
+    assert 0 < refused < len(python) - 50, (refused, len(python))  # both kinds well covered
