@@ -1,20 +1,27 @@
-//! Publish N frames of synthetic moving boxes for one vehicle sensor, in lockstep with the
-//! service, and print what came back for each seq as one JSON line on stdout:
-//! `{"seq", "stamp_ns", "detections": {...}, "tracks": {...}}`, or `"error"`, or `"timeout"`.
+//! Publish N frames of synthetic moving boxes for one vehicle sensor and print what came back
+//! for each seq as one JSON line on stdout: `{"seq", "stamp_ns", "detections": {...},
+//! "tracks": {...}}`, or `"error"`, or `"timeout"`.
 //!
 //!     cargo run --example publish -- --endpoint tcp/127.0.0.1:7447 --frames 20
+//!
+//! By default each frame waits for its answer (lockstep). With `--stream` frames go out every
+//! `--period-ms` whatever comes back (`sent <seq>` on stderr as each goes), and the answers are
+//! printed in arrival order once every frame is answered or `--timeout-s` passed. A last line
+//! on stderr, `summary {...}`, gives the publisher's counts (held, lost, error notices).
 //!
 //! Exit status 0 when every frame was answered with tracks, 1 otherwise, 2 on bad usage.
 
 mod common;
 
-use std::time::Duration;
+use std::collections::{HashMap, HashSet};
+use std::time::{Duration, Instant};
 
 use serde_json::json;
-use simpletrack_client::wire::{BoxColumns, Detection};
+use simpletrack_client::wire::{BoxColumns, Detection, FrameError};
+use simpletrack_client::zenoh::Wait;
 use simpletrack_client::{
-    DetectionPublisher, FrameOptions, PublisherOptions, TrackSubscriber, TrackSubscriberOptions,
-    ZenohOptions,
+    DetectionPublisher, FrameOptions, Mode, PublisherOptions, TrackMessage, TrackSubscriber,
+    TrackSubscriberOptions, ZenohOptions, DEFAULT_CACHE_FRAMES,
 };
 
 use common::{boxes_json, error_json, fail, tracks_json, Args};
@@ -83,20 +90,30 @@ fn boxes_at(t_s: f64) -> BoxColumns {
 }
 
 fn main() {
-    let args = Args::parse(USAGE, &["resume"]);
+    let args = Args::parse(USAGE, &["resume", "stream"]);
     let endpoint = args.get("endpoint", "");
     if endpoint.is_empty() {
         fail(USAGE, "--endpoint is required");
     }
     let (vehicle, sensor) = (args.get("vehicle", "veh-rust"), args.get("sensor", "lidar"));
-    let frames: u64 = args.number("frames", 20);
-    let period_ns: u64 = args.number::<u64>("period-ms", 100) * 1_000_000;
-    let timeout = Duration::from_secs_f64(args.number("timeout-s", 10.0));
+    let run = Run {
+        frames: args.number("frames", 20),
+        period_ns: args.number::<u64>("period-ms", 100) * 1_000_000,
+        timeout: Duration::from_secs_f64(args.number("timeout-s", 10.0)),
+        start: args.optional("start-stamp-ns").unwrap_or_else(now_ns),
+    };
     let prefix = args.get("prefix", "fleet");
+    let mut zenoh = ZenohOptions::connect_to([endpoint.as_str()]);
+    zenoh.mode = match args.get("mode", "peer").as_str() {
+        "peer" => Mode::Peer,
+        "client" => Mode::Client,
+        other => fail(
+            USAGE,
+            &format!("--mode {other:?} is neither peer nor client"),
+        ),
+    };
 
-    let session = ZenohOptions::connect_to([endpoint.as_str()])
-        .open()
-        .unwrap_or_else(|e| fail(USAGE, &e.to_string()));
+    let session = zenoh.open().unwrap_or_else(|e| fail(USAGE, &e.to_string()));
     let tracks = TrackSubscriber::new(
         &session,
         TrackSubscriberOptions {
@@ -107,12 +124,16 @@ fn main() {
     .unwrap_or_else(|e| fail(USAGE, &e.to_string()));
     let options = PublisherOptions {
         prefix,
+        cache_frames: args.number("cache-frames", DEFAULT_CACHE_FRAMES),
         ..PublisherOptions::default()
     };
     let mut publisher = DetectionPublisher::new(&session, &vehicle, &sensor, options)
         .unwrap_or_else(|e| fail(USAGE, &e.to_string()));
-    if !publisher.wait_for_service(timeout) {
-        eprintln!("error: no service subscribed to {vehicle}/{sensor} within {timeout:?}");
+    if !publisher.wait_for_service(run.timeout) {
+        eprintln!(
+            "error: no service subscribed to {vehicle}/{sensor} within {:?}",
+            run.timeout
+        );
         std::process::exit(1);
     }
     if args.flag("resume") {
@@ -125,44 +146,142 @@ fn main() {
         }
     }
 
-    let start: u64 = args.optional("start-stamp-ns").unwrap_or_else(now_ns);
+    let answered = if args.flag("stream") {
+        stream(&run, &mut publisher, &tracks)
+    } else {
+        lockstep(&run, &mut publisher, &tracks)
+    };
+    let errors = publisher.errors().by_reason();
+    let summary = json!({
+        "sent": publisher.sent(), "answered": answered, "held": publisher.held(),
+        "lost": publisher.lost(), "repeats_dropped": tracks.duplicates(),
+        "error_notices": errors.iter().map(|(r, n)| (r.as_str().to_owned(), json!(n))).collect::<serde_json::Map<_, _>>(),
+    });
+    eprintln!("summary {summary}");
+    let ok = answered == run.frames;
+    drop(publisher);
+    drop(tracks);
+    let _ = session.close().wait();
+    std::process::exit(if ok { 0 } else { 1 });
+}
+
+struct Run {
+    frames: u64,
+    period_ns: u64,
+    timeout: Duration,
+    start: u64,
+}
+
+impl Run {
+    /// Frame k's stamp and boxes: every mover where it is k periods after the start.
+    fn frame(&self, k: u64) -> (u64, BoxColumns) {
+        (
+            self.start + k * self.period_ns,
+            boxes_at((k * self.period_ns) as f64 * 1e-9),
+        )
+    }
+}
+
+fn tracks_line(
+    seq: u64,
+    stamp_ns: u64,
+    boxes: &BoxColumns,
+    msg: &TrackMessage,
+) -> serde_json::Value {
+    json!({
+        "seq": seq, "stamp_ns": stamp_ns, "detections": boxes_json(boxes),
+        "tracks": tracks_json(&msg.frame.tracks), "instance": msg.frame.instance,
+        "latency_ms": (msg.received_ns as f64 - msg.frame.received_ns as f64) * 1e-6,
+    })
+}
+
+fn publish(publisher: &mut DetectionPublisher, stamp_ns: u64, boxes: &BoxColumns) -> u64 {
+    publisher
+        .publish_with(boxes, &FrameOptions::at(stamp_ns))
+        .unwrap_or_else(|e| fail(USAGE, &e.to_string()))
+}
+
+/// Each frame waits for its answer; one line per frame, in seq order.
+fn lockstep(run: &Run, publisher: &mut DetectionPublisher, tracks: &TrackSubscriber) -> u64 {
     let mut answered = 0;
-    for k in 0..frames {
-        let stamp_ns = start + k * period_ns;
-        let boxes = boxes_at((k * period_ns) as f64 * 1e-9);
-        let seq = match publisher.publish_with(&boxes, &FrameOptions::at(stamp_ns)) {
-            Ok(seq) => seq,
-            Err(e) => fail(USAGE, &e.to_string()),
-        };
-        let line = match wait_for(&tracks, &publisher, seq, timeout) {
+    for k in 0..run.frames {
+        let (stamp_ns, boxes) = run.frame(k);
+        let seq = publish(publisher, stamp_ns, &boxes);
+        let line = match wait_for(tracks, publisher, seq, run.timeout) {
             Answer::Tracks(msg) => {
                 answered += 1;
-                json!({
-                    "seq": seq, "stamp_ns": stamp_ns, "detections": boxes_json(&boxes),
-                    "tracks": tracks_json(&msg.frame.tracks), "instance": msg.frame.instance,
-                    "latency_ms": (msg.received_ns as f64 - msg.frame.received_ns as f64) * 1e-6,
-                })
+                tracks_line(seq, stamp_ns, &boxes, &msg)
             }
             Answer::Error(e) => json!({"seq": seq, "stamp_ns": stamp_ns, "error": error_json(&e)}),
             Answer::Timeout => json!({"seq": seq, "stamp_ns": stamp_ns, "timeout": true}),
         };
         println!("{line}");
     }
-    eprintln!(
-        "sent {} frames, {answered} answered with tracks, {} error notices, {} repeats dropped",
-        publisher.sent(),
-        publisher.errors().received(),
-        tracks.duplicates()
-    );
-    drop(publisher);
-    drop(tracks);
-    let _ = session.close();
-    std::process::exit(if answered == frames { 0 } else { 1 });
+    answered
+}
+
+/// What came back while streaming, in arrival order.
+#[derive(Default)]
+struct Arrivals {
+    lines: Vec<serde_json::Value>,
+    answered: HashSet<u64>,
+}
+
+impl Arrivals {
+    fn collect(
+        &mut self,
+        publisher: &DetectionPublisher,
+        tracks: &TrackSubscriber,
+        sent: &Sent,
+        wait: Duration,
+    ) {
+        for e in publisher.errors().drain() {
+            self.lines.push(json!({"error": error_json(&e)}));
+        }
+        if let Some(msg) = tracks.recv(Some(wait)) {
+            if let Some((stamp_ns, boxes)) = sent.get(&msg.seq()) {
+                self.answered.insert(msg.seq());
+                self.lines
+                    .push(tracks_line(msg.seq(), *stamp_ns, boxes, &msg));
+            }
+        }
+    }
+}
+
+type Sent = HashMap<u64, (u64, BoxColumns)>;
+
+/// Frames go out on the period whatever comes back; answers are printed in arrival order.
+fn stream(run: &Run, publisher: &mut DetectionPublisher, tracks: &TrackSubscriber) -> u64 {
+    let t0 = Instant::now();
+    let mut sent = Sent::new();
+    let mut arrivals = Arrivals::default();
+    for k in 0..run.frames {
+        let (stamp_ns, boxes) = run.frame(k);
+        let seq = publish(publisher, stamp_ns, &boxes);
+        sent.insert(seq, (stamp_ns, boxes));
+        eprintln!("sent {seq}");
+        let next = t0 + Duration::from_nanos((k + 1) * run.period_ns);
+        while Instant::now() < next {
+            let wait = next
+                .saturating_duration_since(Instant::now())
+                .min(Duration::from_millis(10));
+            arrivals.collect(publisher, tracks, &sent, wait);
+        }
+    }
+    let deadline = Instant::now() + run.timeout;
+    while arrivals.answered.len() < sent.len() && Instant::now() < deadline {
+        arrivals.collect(publisher, tracks, &sent, Duration::from_millis(20));
+    }
+    for (arrival, mut line) in arrivals.lines.into_iter().enumerate() {
+        line["arrival"] = json!(arrival);
+        println!("{line}");
+    }
+    arrivals.answered.len() as u64
 }
 
 enum Answer {
-    Tracks(Box<simpletrack_client::TrackMessage>),
-    Error(simpletrack_client::wire::FrameError),
+    Tracks(Box<TrackMessage>),
+    Error(FrameError),
     Timeout,
 }
 
@@ -172,8 +291,8 @@ fn wait_for(
     seq: u64,
     timeout: Duration,
 ) -> Answer {
-    let deadline = std::time::Instant::now() + timeout;
-    while std::time::Instant::now() < deadline {
+    let deadline = Instant::now() + timeout;
+    while Instant::now() < deadline {
         if let Some(e) = publisher.errors().try_recv() {
             if e.frames().contains(&Some(seq)) {
                 return Answer::Error(e);
