@@ -26,6 +26,9 @@ def need_cargo() -> str:
     """The cargo executable; without one the test is skipped, except under CI (CI=true),
     which must run these tests and so fails."""
     cargo = shutil.which("cargo")
+    rustup_default = Path.home() / ".cargo" / "bin" / "cargo"  # rustup's, when not on PATH
+    if cargo is None and rustup_default.is_file():
+        cargo = str(rustup_default)
     if cargo is None:
         message = "cargo is not installed: the Rust client cannot be built"
         if os.environ.get("CI") == "true":
