@@ -45,11 +45,13 @@ def test_cargo_test_passes_every_golden_vector_both_ways() -> None:
         assert f"{name} ... ok" in out.stdout, f"{name} did not run:\n{out.stdout[-4000:]}"
 
 
-def _run_publisher(endpoint: str, vehicle: str) -> list[dict[str, Any]]:
+def _run_publisher(
+    endpoint: str, vehicle: str, *extra: str, frames: int = FRAMES
+) -> list[dict[str, Any]]:
     publish = example("publish")
     # fmt: off
     cmd = [str(publish), "--endpoint", endpoint, "--vehicle", vehicle, "--sensor", "lidar",
-           "--frames", str(FRAMES), "--timeout-s", "20"]
+           "--frames", str(frames), "--timeout-s", "20", *extra]
     # fmt: on
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert out.returncode == 0, f"publish exited {out.returncode}:\n{out.stdout}\n{out.stderr}"
@@ -132,6 +134,26 @@ def test_a_rust_vehicle_is_tracked_as_the_python_core_tracks_it(
             # Exact: the JSON carries each float32 as the float64 it widens to.
             g, w = got[name], want[name]
             assert g == w, f"seq {line['seq']} {name}: rust {g} != python {w}"
+
+
+@pytest.mark.zenoh
+@BUILDS
+def test_a_restarted_rust_vehicle_resumes_after_the_services_last_seq(tmp_path: Path) -> None:
+    svc = start_service(tmp_path, "--preset", "kitti", instance="rust-resume")
+    try:
+        first = _run_publisher(svc.endpoint, "veh-rust-resume", frames=5)
+        again = _run_publisher(svc.endpoint, "veh-rust-resume", "--resume", frames=5)
+        fresh = _run_publisher(svc.endpoint, "veh-rust-resume", frames=2)
+    finally:
+        assert svc.stop() == 0
+    assert [line["seq"] for line in first] == [0, 1, 2, 3, 4]
+    # The second run asked the service and went on after its seq 4; every frame tracked.
+    assert [line["seq"] for line in again] == [5, 6, 7, 8, 9]
+    assert all("tracks" in line for line in again), again
+    # Without --resume a restarted publisher starts at 0 again, and is tracked all the same
+    # (a new session id tells the service it restarted).
+    assert [line["seq"] for line in fresh] == [0, 1]
+    assert all("tracks" in line for line in fresh), fresh
 
 
 @BUILDS

@@ -26,9 +26,9 @@ use simpletrack_client::{
 
 use common::{boxes_json, error_json, fail, tracks_json, Args};
 
-const USAGE: &str =
-    "usage: publish --endpoint tcp/HOST:PORT [--vehicle veh-rust] [--sensor lidar] \
-[--frames 20] [--prefix fleet] [--period-ms 100] [--start-stamp-ns NS] [--timeout-s 10] [--resume]";
+const USAGE: &str = "usage: publish --endpoint tcp/HOST:PORT [--mode peer|client] \
+[--vehicle veh-rust] [--sensor lidar] [--frames 20] [--prefix fleet] [--period-ms 100] \
+[--start-stamp-ns NS] [--timeout-s 10] [--cache-frames 100] [--resume] [--stream]";
 
 /// A road user moving in a straight line at constant speed.
 struct Mover {

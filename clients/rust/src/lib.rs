@@ -27,3 +27,8 @@ pub use subscriber::{
     TrackCallback, TrackMessage, TrackSubscriber, TrackSubscriberOptions, RECENT_FRAMES,
 };
 pub use zenoh;
+
+// The README's example compiles (it needs a service to run).
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -153,3 +153,50 @@ impl ZenohOptions {
         Ok(zenoh::open(self.to_config()?).wait()?)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_connect_to_a_local_service_with_scouting_off_and_no_listener() {
+        let c = ZenohOptions::default().to_config().unwrap();
+        assert_eq!(
+            c.get_json("connect/endpoints").unwrap(),
+            r#"["tcp/127.0.0.1:7447"]"#
+        );
+        assert_eq!(c.get_json("listen/endpoints").unwrap(), "[]");
+        assert_eq!(c.get_json("scouting/multicast/enabled").unwrap(), "false");
+        assert_eq!(
+            c.get_json(BLOCK_WAIT_BEFORE_CLOSE_KEY).unwrap(),
+            BLOCK_WAIT_BEFORE_CLOSE_US.to_string()
+        );
+    }
+
+    #[test]
+    fn bad_options_are_refused_naming_the_value() {
+        let e = ZenohOptions::connect_to(["127.0.0.1:7447"])
+            .to_config()
+            .unwrap_err();
+        assert!(e.to_string().contains("\"127.0.0.1:7447\""), "{e}");
+        let client = ZenohOptions {
+            mode: Mode::Client,
+            ..ZenohOptions::connect_to(Vec::<String>::new())
+        };
+        assert!(client
+            .to_config()
+            .unwrap_err()
+            .to_string()
+            .contains("router"));
+        let listening = ZenohOptions {
+            mode: Mode::Client,
+            listen: vec!["tcp/127.0.0.1:0".into()],
+            ..ZenohOptions::default()
+        };
+        assert!(listening
+            .to_config()
+            .unwrap_err()
+            .to_string()
+            .contains("does not listen"));
+    }
+}
