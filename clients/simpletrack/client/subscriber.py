@@ -129,6 +129,8 @@ class TrackSubscriber:
     ) -> None:
         self.key_expr = key_expr or tracks_key(prefix, vehicle, sensor)
         self.invalid = 0  # payloads on a tracks key that did not decode
+        self._invalid_seen = 0  # the same, counted as each arrives (for the log line)
+        self._invalid_lock = threading.Lock()
         self.duplicates = 0  # frames delivered before, not delivered again
         self._recent: dict[str, deque[tuple[int, int]]] = {}  # key -> last (seq, stamp)
         self._recent_lock = threading.Lock()
@@ -187,30 +189,35 @@ class TrackSubscriber:
             log.exception("track callback failed")
 
     def _invalid(self, key: str, r: Rejection) -> None:
-        self.invalid += 1
-        self.invalid_reasons[r.reason.value] = self.invalid_reasons.get(r.reason.value, 0) + 1
-        self.last_rejection = r
-        now = time.monotonic()
-        if now - self._invalid_logged_at >= INVALID_LOG_INTERVAL_S:
-            log.warning(
-                "invalid track frame on %s: %s (field %s): %s; %d invalid so far, "
-                "%d more since the last line",
-                key,
-                r.reason.value,
-                r.field,
-                r.detail,
-                self.invalid,
-                self._invalid_unlogged,
-                extra={"key": key, "reason": r.reason.value, "field": r.field},
-            )
-            self._invalid_logged_at, self._invalid_unlogged = now, 0
-        else:
-            self._invalid_unlogged += 1
+        with self._invalid_lock:  # samples of two links come on two threads
+            self._invalid_seen += 1
+            self.invalid_reasons[r.reason.value] = self.invalid_reasons.get(r.reason.value, 0) + 1
+            self.last_rejection = r
+            now = time.monotonic()
+            if now - self._invalid_logged_at >= INVALID_LOG_INTERVAL_S:
+                log.warning(
+                    "invalid track frame on %s: %s (field %s): %s; %d invalid so far, "
+                    "%d more since the last line",
+                    key,
+                    r.reason.value,
+                    r.field,
+                    r.detail,
+                    self._invalid_seen,
+                    self._invalid_unlogged,
+                    extra={"key": key, "reason": r.reason.value, "field": r.field},
+                )
+                self._invalid_logged_at, self._invalid_unlogged = now, 0
+            else:
+                self._invalid_unlogged += 1
         if self._on_invalid is not None:
             try:
                 self._on_invalid(key, r)
             except Exception:  # a user callback must not kill Zenoh's thread
                 log.exception("on_invalid callback failed")
+        # Counted last: whoever sees the count also sees the log line and the callback's work
+        # (a test that waited for the count once read the log before the line was written).
+        with self._invalid_lock:
+            self.invalid += 1
 
     # ----------------------------------------------------------------- consuming
     @property
