@@ -22,6 +22,7 @@ import numpy.typing as npt
 
 from simpletrack.core.boxes import Boxes, wrap_angle
 from simpletrack.core.config import TrackerConfig
+from simpletrack.core.frames import Tracks
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -313,6 +314,31 @@ def format_results(rows: ResultRows, calib: Calib) -> str:
     for f, i, t, vals in zip(rows.frame, rows.track_id, rows.type_name, nums, strict=True):
         lines.append(f"{int(f)} {int(i)} {t} 0 0 " + " ".join(f"{v:.6f}" for v in vals))
     return "".join(line + "\n" for line in lines)
+
+
+def result_class_names(config: TrackerConfig, classes: Sequence[str]) -> list[str]:
+    """The config's class names with ``classes`` (KITTI type names) in their place: results
+    carry KITTI's names whatever the config calls its classes."""
+    names = list(config.class_names)
+    for cls in classes:
+        names[config_class_code(config, cls)] = cls
+    return names
+
+
+def write_tracked(
+    out_dir: Path,
+    seq: str,
+    frames: Sequence[SequenceFrame],
+    outputs: Sequence[Tracks],
+    class_names: Sequence[str],
+    calib: Calib,
+) -> Path:
+    """A tracked sequence's result file (``write_results`` of every frame's tracks)."""
+    rows = ResultRows.concat(
+        tracks_to_rows(f.index, t.ids, t.boxes, class_names)
+        for f, t in zip(frames, outputs, strict=True)
+    )
+    return write_results(out_dir, seq, rows, calib)
 
 
 def write_results(out_dir: Path, seq: str, rows: ResultRows, calib: Calib) -> Path:

@@ -32,13 +32,11 @@ from typing import Any
 
 from simpletrack.core.config import TrackerConfig, preset
 from simpletrack.datasets.kitti import (
-    ResultRows,
     SequenceFrame,
-    config_class_code,
     load_sequence,
     read_calib,
-    tracks_to_rows,
-    write_results,
+    result_class_names,
+    write_tracked,
 )
 from simpletrack.eval.kitti import evaluate_problem
 from simpletrack.eval.kitti_data import build_problem
@@ -180,20 +178,15 @@ def _track(job: tuple[str, Candidate, tuple[str, ...]]) -> None:
     assert _W is not None
     cls, cand, seqs = job
     config = cand.config(cls)
-    names = list(config.class_names)
-    names[config_class_code(config, cls)] = cls
+    names = result_class_names(config, [cls])
     out = _results_dir(_W.root, cls, cand.name).parent
     for seq in seqs:
         key = (cls, seq)
         if key not in _W.frames:
             _W.frames[key] = load_sequence(_W.data, seq, config, [cls])
         frames = _W.frames[key]
-        outputs = track_sequence(frames, config)
-        rows = ResultRows.concat(
-            tracks_to_rows(f.index, t.ids, t.boxes, names)
-            for f, t in zip(frames, outputs, strict=True)
-        )
-        write_results(out, seq, rows, read_calib(_W.data / "calib" / f"{seq}.txt"))
+        calib = read_calib(_W.data / "calib" / f"{seq}.txt")
+        write_tracked(out, seq, frames, track_sequence(frames, config), names, calib)
 
 
 def _figures(job: tuple[str, str, tuple[str, ...]]) -> dict[str, float]:

@@ -50,13 +50,12 @@ from simpletrack.datasets.kitti import (
     KITTI_CLASSES,
     TRAIN_SEQUENCES,
     Calib,
-    ResultRows,
     SequenceFrame,
     config_class_code,
     load_sequence,
     read_calib,
-    tracks_to_rows,
-    write_results,
+    result_class_names,
+    write_tracked,
 )
 from simpletrack.eval.kitti import (
     NO_THRESHOLD,
@@ -167,18 +166,11 @@ def evaluate_config(
     config: TrackerConfig, cls: str, seqs: Sequence[str], data: _Data
 ) -> dict[str, float]:
     """Every figure of ``cls`` on ``seqs`` for ``config`` (the eval command's numbers)."""
-    code = config_class_code(config, cls)
-    names = list(config.class_names)
-    names[code] = cls
+    names = result_class_names(config, [cls])
     out = data.workdir
     for seq in seqs:
         frames = data.get(config, cls, seq)
-        outputs = track_sequence(frames, config)
-        rows = ResultRows.concat(
-            tracks_to_rows(f.index, t.ids, t.boxes, names)
-            for f, t in zip(frames, outputs, strict=True)
-        )
-        write_results(out, seq, rows, data.calib(seq))
+        write_tracked(out, seq, frames, track_sequence(frames, config), names, data.calib(seq))
     problem = build_problem(data.root / "labels", out / "data_0", seqs, cls)
     return {**evaluate_problem(problem), **unchained_figures(problem)}
 

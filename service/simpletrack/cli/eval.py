@@ -19,13 +19,12 @@ from simpletrack.core.frames import Frame, Tracks
 from simpletrack.datasets.kitti import (
     KITTI_CLASSES,
     TRAIN_SEQUENCES,
-    ResultRows,
     SequenceFrame,
     config_class_code,
     load_sequence,
     read_calib,
-    tracks_to_rows,
-    write_results,
+    result_class_names,
+    write_tracked,
 )
 from simpletrack.eval.kitti import METRIC_NAMES, evaluate
 from simpletrack.eval.tracking import track_sequence
@@ -164,21 +163,14 @@ def track_all(
     tracking: Tracking = _local,
 ) -> Path:
     """Track every sequence and write ``out/data_0/NNNN.txt``; returns that folder."""
-    # Results carry KITTI type names whatever the config calls its classes.
-    names = list(config.class_names)
-    for cls in classes:
-        names[config_class_code(config, cls)] = cls
+    names = result_class_names(config, classes)
     for seq in seqs:
         try:
             frames = load_sequence(data, seq, config, classes)
         except (FileNotFoundError, ValueError) as exc:
             raise UserError(str(exc)) from None
-        outputs = tracking(seq, frames, config)
-        rows = ResultRows.concat(
-            tracks_to_rows(f.index, t.ids, t.boxes, names)
-            for f, t in zip(frames, outputs, strict=True)
-        )
-        write_results(out, seq, rows, read_calib(data / "calib" / f"{seq}.txt"))
+        calib = read_calib(data / "calib" / f"{seq}.txt")
+        write_tracked(out, seq, frames, tracking(seq, frames, config), names, calib)
     return out / "data_0"
 
 
