@@ -29,6 +29,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "session": set(),
     "client": {"wire", "session"},
     "ros2": {"wire", "session", "client"},  # an adapter over the client library: light too
+    "view": {"wire", "session", "client"},  # a planner-side page: light too
     "server": {"core", "wire", "session"},
     "datasets": {"core", "wire"},
     "eval": {"core", "wire", "session", "datasets", "spawn", "server"},
@@ -36,7 +37,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "sim": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server"},
     "bench": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server", "sim"},
     "plot": {"core", "datasets"},
-    "cli": {"core", "wire", "session", "client", "server", "ros2", *TOOLS},
+    "cli": {"core", "wire", "session", "client", "server", "ros2", "view", *TOOLS},
 }
 
 
@@ -149,6 +150,10 @@ def _loaded_after(statement: str) -> set[str]:
             {"scipy", "pydantic", "prometheus_client", "simpletrack.core", "simpletrack.server"},
         ),
         ("import simpletrack.session", {"pydantic", "scipy", "simpletrack.core"}),
+        (
+            "import simpletrack.view",
+            {"scipy", "pydantic", "simpletrack.core", "simpletrack.server"},
+        ),
     ],
 )
 def test_light_imports_stay_light(statement: str, absent: set[str]) -> None:

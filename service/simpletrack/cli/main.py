@@ -35,10 +35,24 @@ def build_parser() -> argparse.ArgumentParser:
         serve,
         status,
         track,
+        view,
         watch,
     )
 
-    for command in (track, eval, plot, replay, record, demo, watch, status, bench, serve, bridge):
+    for command in (
+        track,
+        eval,
+        plot,
+        replay,
+        record,
+        demo,
+        watch,
+        status,
+        bench,
+        serve,
+        bridge,
+        view,
+    ):
         command.register(sub)
     return parser
 

@@ -1,0 +1,130 @@
+"""``simpletrack view``: a live bird's-eye view of the tracks in the browser (docs/VIEW.md)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+from types import FrameType
+
+from simpletrack.cli.common import (
+    ZENOH_NOTE,
+    add_client_args,
+    check_prefix,
+    client_options,
+    open_client_session,
+)
+from simpletrack.cli.errors import UserError
+from simpletrack.view import DEFAULT_PORT, Fov, PortInUse, ViewServer
+
+EPILOG = f"""\
+Subscribes to <prefix>/*/*/tracks like a planner (and to detections with --detections) and
+serves a page drawing the chosen sensor's tracks from above: boxes by state, ids, heading,
+velocity, the ego pose (when frames carry one) and the field of view given with --fov. Also
+GET /state.json (the latest frame of every sensor) and /events (Server-Sent Events, at most
+10 pushes a second). Ends on Ctrl-C.
+
+{ZENOH_NOTE}
+
+examples:
+  simpletrack view                                   # open the URL it prints
+  simpletrack view --sensors veh01/lidar,veh02/'*' --detections
+  simpletrack view --fov lidar=360:50 --fov front=100:70
+"""
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser(
+        "view",
+        help="live bird's-eye view of the tracks in the browser",
+        description="Serve a live bird's-eye view of the tracks (and detections) over HTTP.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
+    p.add_argument(
+        "--sensors",
+        metavar="V/S[,V/S...]",
+        help="only these vehicle/sensor streams (either part may be *); default all",
+    )
+    p.add_argument("--detections", action="store_true", help="also subscribe to detections")
+    p.add_argument(
+        "--fov",
+        action="append",
+        default=[],
+        metavar="SENSOR=DEG:RANGE",
+        help="draw this field of view (degrees, metres) for a sensor name or vehicle/sensor",
+    )
+    p.add_argument("--http-host", default="127.0.0.1", help="address to serve on (127.0.0.1)")
+    p.add_argument(
+        "--http-port", type=int, default=DEFAULT_PORT, help=f"port to serve on ({DEFAULT_PORT})"
+    )
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    add_client_args(p)
+    p.set_defaults(func=run)
+
+
+def parse_fov(values: list[str]) -> dict[str, Fov]:
+    out = {}
+    for value in values:
+        name, eq, rest = value.partition("=")
+        deg, colon, rng = rest.partition(":")
+        try:
+            fov = Fov(float(deg), float(rng))
+        except ValueError:
+            fov = None
+        if not (eq and colon and name) or fov is None or not 0 < fov.deg <= 360 or fov.range_m <= 0:
+            raise UserError(
+                f"--fov {value!r} must look like SENSOR=DEG:RANGE, 0 < DEG <= 360, RANGE > 0"
+            )
+        out[name] = fov
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    prefix = check_prefix(args.prefix)
+    sensors = [s for s in (args.sensors or "").split(",") if s] or None
+    fov = parse_fov(args.fov)
+    if not 0 <= args.http_port <= 65535:
+        raise UserError(f"--http-port {args.http_port} must be between 0 and 65535")
+    if args.duration is not None and args.duration <= 0:
+        raise UserError(f"--duration {args.duration} must be positive")
+    options = client_options(args)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    session = open_client_session(options)
+    try:
+        try:
+            view = ViewServer(
+                session,
+                prefix,
+                args.http_host,
+                args.http_port,
+                sensors=sensors,
+                detections=args.detections,
+                fov=fov,
+            )
+        except PortInUse:
+            raise UserError(
+                f"--http-port {args.http_port} is already in use on {args.http_host}"
+            ) from None
+        except OSError as exc:
+            raise UserError(
+                f"cannot serve on --http-host {args.http_host} --http-port {args.http_port}: "
+                f"{exc.strerror or exc}"
+            ) from None
+        except ValueError as exc:
+            raise UserError(f"--sensors: {exc}") from None
+        try:
+            print(f"view: {view.url} (Ctrl-C to stop)", flush=True)
+            stop.wait(args.duration)
+        finally:
+            view.close()
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return 0
