@@ -33,3 +33,8 @@ if [ "${CI:-}" = "true" ] && [ "$(id -u)" = "0" ] &&
      libmsgpack-cxx-dev nlohmann-json3-dev >/dev/null 2>&1) \
     || echo "setup: msgpack-c++/nlohmann-json headers could not be installed; tests/native will fail" >&2
 fi
+# The browser the view's page is drawn with (tests/view/test_page.py); optional outside CI.
+if [ "${CI:-}" = "true" ] && ! command -v chromium >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
+  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
+    || echo "setup: chromium could not be installed; tests/view/test_page.py will fail" >&2
+fi
