@@ -1,4 +1,5 @@
-"""``simpletrack record``: write the tracks the service publishes to files."""
+"""``simpletrack record``: write the tracks the service publishes to files, or every message of
+chosen sensors to an MCAP recording."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from simpletrack.cli.common import (
     open_client_session,
 )
 from simpletrack.cli.errors import UserError
+from simpletrack.cli.mcap_format import LEAVES
 from simpletrack.client.subscriber import TrackSubscriber
 from simpletrack.datasets.recording import JsonlWriter, KittiWriter, message_to_json
 
@@ -31,6 +33,11 @@ formats:
           sensor id (what `replay kitti` uses: the sequence, e.g. 0000), boxes converted back
           to the KITTI camera frame, scores as logits. Give --calib (KITTI calib folder) for
           the 2D boxes that `simpletrack eval kitti --results OUT/data_0` needs.
+  mcap    OUT is a file: every message on the --sensors' detections, tracks and errors
+          keys (--what), payload bytes unchanged (message encoding msgpack, JSON Schema of
+          each message), one channel per key; log time = receive time, publish time = the
+          frame's stamp. `simpletrack replay mcap OUT` publishes its detections again;
+          `mcap info OUT` and Foxglove open it. --frames counts messages here.
 
 Stops on Ctrl-C or SIGTERM (exit 0, files complete), after --frames N frames, after
 --duration S seconds, or after --idle S seconds without frames once some arrived.
@@ -46,6 +53,9 @@ examples:
       --calib ../shared/data/kitti/calib --out out/kitti-zenoh --idle 5
   simpletrack eval kitti --results out/kitti-zenoh/data_0 --seqs 0000
 
+  # a field recording of one vehicle: what it sent, what came back, until Ctrl-C
+  simpletrack record --format mcap --out out/veh01.mcap --sensors 'veh01/*'
+
   # one vehicle's lidar, 500 frames
   simpletrack record --keys 'fleet/veh01/lidar/tracks' --frames 500 --out out/veh01
 """
@@ -54,7 +64,7 @@ examples:
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "record",
-        help="record published tracks to files (KITTI results or JSON lines)",
+        help="record published tracks to files (KITTI results or JSON lines), or messages to MCAP",
         description="Subscribe to track frames by key expression and write them to files.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=EPILOG,
@@ -63,8 +73,21 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--keys",
         help="key expression of the track frames (default: <prefix>/*/*/tracks, the whole fleet)",
     )
-    p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--format", choices=("jsonl", "kitti"), default="jsonl", help="default jsonl")
+    p.add_argument("--out", type=Path, required=True, help="output folder (mcap: output file)")
+    p.add_argument(
+        "--format", choices=("jsonl", "kitti", "mcap"), default="jsonl", help="default jsonl"
+    )
+    p.add_argument(
+        "--sensors",
+        nargs="+",
+        metavar="VEHICLE/SENSOR",
+        help="mcap: the streams to record, * allowed (default */*: the whole fleet)",
+    )
+    p.add_argument(
+        "--what",
+        default=",".join(LEAVES),
+        help=f"mcap: comma-separated keys of each sensor to record (default {','.join(LEAVES)})",
+    )
     p.add_argument("--frames", type=int, help="stop after this many frames")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--idle", type=float, help="stop after this many seconds without frames")
@@ -76,6 +99,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def _check(args: argparse.Namespace) -> str:
     prefix = check_prefix(args.prefix)
+    if args.format == "mcap":
+        if args.keys is not None:
+            raise UserError("--keys applies to jsonl and kitti; mcap records --sensors")
+        if args.out.is_dir():
+            raise UserError(f"--out {args.out} is a folder; mcap writes a file")
+    elif args.sensors is not None or args.what != ",".join(LEAVES):
+        raise UserError("--sensors and --what apply to --format mcap only")
     keys = args.keys or f"{prefix}/*/*/tracks"
     try:
         zenoh.KeyExpr(keys)
@@ -90,13 +120,15 @@ def _check(args: argparse.Namespace) -> str:
             raise UserError("--calib applies to --format kitti only")
         if not args.calib.is_dir():
             raise UserError(f"--calib {args.calib}: no such folder")
-    if args.out.exists() and not args.out.is_dir():
+    if args.format != "mcap" and args.out.exists() and not args.out.is_dir():
         raise UserError(f"--out {args.out} exists and is not a folder")
     return keys
 
 
 def run(args: argparse.Namespace) -> int:
     keys = _check(args)
+    if args.format == "mcap":
+        return run_mcap(args)
     options = client_options(args)
     args.out.mkdir(parents=True, exist_ok=True)
     stop = threading.Event()
@@ -162,3 +194,64 @@ def run(args: argparse.Namespace) -> int:
         + (f"; {invalid} undecodable frames skipped" if invalid else "")
     )
     return 0
+
+
+def run_mcap(args: argparse.Namespace) -> int:
+    from simpletrack.cli.record_mcap import McapRecorder, parse_sensors, parse_what, subscribe
+
+    sensors = parse_sensors(args.sensors)
+    what = parse_what(args.what, LEAVES)
+    options = client_options(args)
+    if not args.out.parent.is_dir():
+        raise UserError(f"--out {args.out}: no folder {args.out.parent}")
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    started = time.monotonic()
+    reason = "interrupted"
+    recorder = None
+    try:
+        session = open_client_session(options)
+        try:
+            recorder = McapRecorder(args.out, args.prefix)
+            subs = subscribe(session, args.prefix, sensors, what, recorder)
+            if not args.quiet:
+                streams = " ".join(f"{v}/{s}" for v, s in sensors)
+                print(
+                    f"recording {','.join(what)} of {streams} under {args.prefix} to {args.out} "
+                    "(mcap); Ctrl-C to stop",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            while not stop.wait(0.1):
+                if args.duration is not None and time.monotonic() - started >= args.duration:
+                    reason = "duration reached"
+                    break
+                last = recorder.last_ns
+                if args.idle is not None and last is not None and _idle(last, args.idle):
+                    reason = f"idle for {args.idle:g} s"
+                    break
+                if args.frames is not None and recorder.messages >= args.frames:
+                    reason = f"{recorder.messages} messages"
+                    break
+            for sub in subs:
+                sub.undeclare()  # type: ignore[no-untyped-call]
+        finally:
+            session.close()  # type: ignore[no-untyped-call]
+    finally:
+        if recorder is not None:
+            recorder.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    messages = recorder.messages if recorder is not None else 0
+    print(
+        f"record: {reason}: {messages} messages in {time.monotonic() - started:.1f} s to {args.out}"
+    )
+    return 0
+
+
+def _idle(last_ns: int, idle_s: float) -> bool:
+    return time.time_ns() - last_ns >= idle_s * 1e9

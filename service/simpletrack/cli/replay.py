@@ -1,5 +1,5 @@
-"""``simpletrack replay kitti|nuscenes``: publish recorded detection files onto Zenoh, paced at
-the data's frame rate (or a chosen one, or as fast as the service keeps up)."""
+"""``simpletrack replay kitti|nuscenes|mcap``: publish recorded detection files onto Zenoh, paced
+at the data's frame rate (or a chosen one, or as fast as the service keeps up)."""
 
 from __future__ import annotations
 
@@ -33,6 +33,12 @@ Each sequence (KITTI) or scene (nuScenes) is its own sensor stream, named by --s
 stamp_ns = start time + the frame's time in the data (10 Hz KITTI, 2 Hz nuScenes). Frames
 without detections are sent too, so the tracker ages its tracks exactly as offline.
 
+mcap: `replay mcap FILE.mcap` publishes the detections channels of a `simpletrack record
+--format mcap` recording, payload bytes as recorded (vehicle, sensor, seq and stamps
+included), on their recorded keys, or under another --prefix. --sensors picks streams.
+--rate recorded (the default) keeps the recorded pace (receive time differences); a number is
+each stream's frames per second.
+
 Pacing: --rate 10 sends 10 frames per second; --rate max sends as fast as the service keeps
 up: at most --window frames are in flight (sent, but neither tracked nor refused yet).
 
@@ -49,6 +55,9 @@ examples:
   simpletrack replay kitti --data ../shared/data/kitti --seqs 0000,0002,0003 \\
       --vehicle car1 --sensor 'cam-{{seq}}' --rate max
 
+  # a field recording's detections into a fresh service, under another prefix, at full speed
+  simpletrack replay mcap out/veh01.mcap --prefix lab --rate max
+
   # nuScenes CenterPoint scenes to a service started with --preset nuscenes
   simpletrack replay nuscenes --data ../shared/data/nuscenes/centerpoint_val \\
       --seqs scene-0003,scene-0012 --rate max --connect tcp/10.0.0.5:7447
@@ -58,18 +67,26 @@ examples:
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "replay",
-        help="publish KITTI or nuScenes detection files onto Zenoh at their frame rate",
+        help="publish KITTI, nuScenes or MCAP-recorded detections onto Zenoh at their rate",
         description="Replay recorded detection files to the tracking service over Zenoh, "
         "with a progress bar and a summary of frames sent, tracked and refused.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=EPILOG,
     )
-    p.add_argument("dataset", choices=("kitti", "nuscenes"), help="layout of the detection files")
+    p.add_argument(
+        "dataset", choices=("kitti", "nuscenes", "mcap"), help="layout of the detection files"
+    )
+    p.add_argument("file", nargs="?", type=Path, help="mcap: the recording (FILE.mcap)")
     p.add_argument(
         "--data",
         type=Path,
-        required=True,
         help="KITTI folder (detections/pointrcnn/...) or nuScenes folder of scene-*.txt files",
+    )
+    p.add_argument(
+        "--sensors",
+        nargs="+",
+        metavar="VEHICLE/SENSOR",
+        help="mcap: the recorded streams to send (default: all)",
     )
     p.add_argument("--seqs", help="comma-separated sequences or scenes (default: all found)")
     p.add_argument(
@@ -84,7 +101,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument(
         "--rate",
         default=None,
-        help="frames per second, or 'max' (default: the data's rate, 10 KITTI / 2 nuScenes)",
+        help="frames per second, or 'max' (default: the data's rate, 10 KITTI / 2 nuScenes); "
+        "mcap also 'recorded' (its default)",
     )
     p.add_argument("--window", type=int, default=32, help="frames in flight at most (default 32)")
     p.add_argument(
@@ -103,7 +121,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="give up when the service answers nothing for this long (default 10 s)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_client_args(p)
+    add_client_args(p, prefix=False)
+    p.add_argument(
+        "--prefix",
+        help="first key chunk(s) of the service (default fleet; mcap: the recorded keys')",
+    )
     p.set_defaults(func=run)
 
 
@@ -188,14 +210,14 @@ class Answers:
     """What came back from the service, per (sensor, seq): a track frame or an error."""
 
     cond: threading.Condition = field(default_factory=threading.Condition)
-    answered: set[tuple[str, int]] = field(default_factory=set)
+    answered: set[tuple[str, str, int]] = field(default_factory=set)
     tracked: int = 0
     errors: Counter[str] = field(default_factory=Counter)
     last_answer: float = field(default_factory=time.monotonic)
 
     def on_tracks(self, msg: TrackMessage) -> None:
         with self.cond:
-            key = (msg.sensor, msg.seq)
+            key = (msg.vehicle, msg.sensor, msg.seq)
             if key not in self.answered:
                 self.answered.add(key)
                 self.tracked += 1
@@ -206,7 +228,7 @@ class Answers:
         with self.cond:
             self.errors[err.reason.value] += 1
             if err.seq is not None:
-                self.answered.add((err.sensor, err.seq))
+                self.answered.add((err.vehicle, err.sensor, err.seq))
             self.last_answer = time.monotonic()
             self.cond.notify_all()
 
@@ -242,7 +264,17 @@ def parse_rate(text: str | None, default: float) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    prefix = check_prefix(args.prefix)
+    if args.dataset == "mcap":
+        from simpletrack.cli.replay_mcap import run_mcap
+
+        return run_mcap(args)
+    if args.file is not None:
+        raise UserError(f"{args.file}: replay {args.dataset} reads --data, not a file argument")
+    if args.sensors is not None:
+        raise UserError("--sensors applies to replay mcap only")
+    if args.data is None:
+        raise UserError(f"replay {args.dataset} needs --data")
+    prefix = check_prefix(args.prefix or "fleet")
     seqs = [s.strip() for s in args.seqs.split(",") if s.strip()] if args.seqs else None
     classes = [c.strip() for c in args.classes.split(",") if c.strip()] if args.classes else None
     vehicle = args.vehicle or args.dataset
