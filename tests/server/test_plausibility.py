@@ -95,10 +95,10 @@ def test_yaw_in_degrees() -> None:
 def test_logit_scores_name_the_minimum() -> None:
     found = check(replace(street(), score=np.linspace(-3.0, 2.0, 20)))
     assert causes(found)[0] is Cause.SCORE_RANGE
-    assert "logits" in found[0].hint and "min -3" in found[0].hint
+    assert "scores look like logits (min -3)" in found[0].hint
     assert "[0, 1]" in found[0].hint
     (f,) = check(replace(street(), score=np.full(20, 87.0)))
-    assert f.cause is Cause.SCORE_RANGE and "max 87" in f.hint
+    assert f.cause is Cause.SCORE_RANGE and "logits or percentages (max 87)" in f.hint
 
 
 def test_every_score_under_the_start_threshold() -> None:

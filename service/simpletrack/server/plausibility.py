@@ -137,12 +137,14 @@ def _scores(
     lo, hi = float(boxes.score.min()), float(boxes.score.max())
     found = []
     if lo < 0.0 or hi > 1.0:
-        figure, which = (lo, "min") if lo < 0.0 else (hi, "max")
+        # Only logits go negative; over 1 and never negative may be percentages too.
+        figure, which, like = (
+            (lo, "min", "logits") if lo < 0.0 else (hi, "max", "logits or percentages")
+        )
         found.append(
             Finding(
                 Cause.SCORE_RANGE,
-                f"scores look like logits or percentages ({which} {figure:g}); scores are "
-                f"probabilities in [0, 1]",
+                f"scores look like {like} ({which} {figure:g}); scores are probabilities in [0, 1]",
                 figure,
             )
         )
