@@ -29,6 +29,7 @@ from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
 from simpletrack.server.misses import MissCounter
 from simpletrack.server.outbox import MSGPACK, dropped, frame_error, put
+from simpletrack.server.plausibility import StartThresholds
 from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, Subscribe, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
@@ -136,6 +137,7 @@ class Service:
             writer=self._writer,
             shared=shared,
             limits=DecodeLimits(max_bytes=s.max_frame_bytes, max_boxes=s.max_boxes),
+            start_thresholds=StartThresholds.of(self.config),
         )
         self._queues = [WorkQueue(s.queue_size) for _ in range(s.workers)]
         self._workers = [Worker(i, q, ctx) for i, q in enumerate(self._queues)]

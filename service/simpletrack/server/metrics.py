@@ -1,6 +1,6 @@
 """Prometheus metrics and the HTTP endpoint serving /metrics, /healthz and /readyz.
 
-Label cardinality is bounded: ``reason`` and ``stage`` are enums; ``vehicle`` only when
+Label cardinality is bounded: ``reason``, ``stage`` and ``cause`` are enums; ``vehicle`` only when
 enabled, and capped (later vehicles share ``_other``); never a track or sensor id.
 """
 
@@ -23,6 +23,7 @@ from prometheus_client import (
     generate_latest,
 )
 
+from simpletrack.server.plausibility import Cause
 from simpletrack.wire.reasons import DROP_REASONS, SCHEMA_VERSION, ErrorReason
 
 # Frame latencies live between ~0.1 ms (decode) and seconds (a stalled queue).
@@ -197,6 +198,14 @@ class Metrics:
         )
         for direction in ("in", "out"):
             self.handoffs.labels(direction=direction)
+        # By cause (an enum), never by sensor: the sensor is in the log line and in the
+        # status queryable's per-sensor ``warnings`` (docs/SERVICE.md, "Plausibility warnings").
+        self.implausible = Counter(
+            "simpletrack_implausible_frames",
+            "Frames tracked although they look like a unit or convention mistake, by cause",
+            ("cause", *v),
+            registry=r,
+        )
         self.build = Info("simpletrack_build", "Versions of this service", registry=r)
         self.build.info(
             {
@@ -213,6 +222,9 @@ class Metrics:
             self.stage.labels(stage=stage)
         for why in ("gap", "time_backwards", "restart", "non_finite"):
             self.resets.labels(reason=why)
+        if not vehicle_label:
+            for cause in Cause:
+                self.implausible.labels(cause=cause.value)
 
     def labels(self, vehicle: str) -> dict[str, str]:
         """The vehicle label (if enabled), folding vehicles past the cap into ``_other``."""
@@ -234,6 +246,9 @@ class Metrics:
 
     def count_missed(self, vehicle: str, n: int) -> None:
         self.dropped.labels(reason=ErrorReason.MISSED.value, **self.labels(vehicle)).inc(n)
+
+    def count_implausible(self, cause: Cause, vehicle: str) -> None:
+        self.implausible.labels(cause=cause.value, **self.labels(vehicle)).inc()
 
     def count_error(self, reason: ErrorReason, vehicle: str) -> None:
         metric = self.dropped if reason in DROP_REASONS else self.rejected

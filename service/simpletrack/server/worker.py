@@ -22,6 +22,7 @@ from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue, stamp_o
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import Outbox, congestion_control, dropped, missed_notice
+from simpletrack.server.plausibility import Cause, Finding, StartThresholds, check_frame
 from simpletrack.server.registry import SensorRegistry
 from simpletrack.server.sensors import (
     Arrival,
@@ -36,6 +37,7 @@ from simpletrack.server.sensors import (
 from simpletrack.server.settings import ServiceSettings
 from simpletrack.server.snapshots import SnapshotWriter
 from simpletrack.wire.codec import (
+    DecodedDetections,
     DecodeLimits,
     Rejection,
     decode_detection_frame,
@@ -50,6 +52,7 @@ from simpletrack.wire.reasons import ErrorReason
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
 NAME_RE = re.compile(NAME_PATTERN)
 HOUSEKEEPING_S = 0.5
+_WARNED_CAP = 10_000  # sensors whose logged causes are remembered (see Worker._warned)
 
 
 @dataclass
@@ -68,6 +71,7 @@ class Context:
     writer: SnapshotWriter | None
     shared: Shared
     limits: DecodeLimits = field(default_factory=DecodeLimits)
+    start_thresholds: StartThresholds | None = None  # None: no check of scores against them
 
     @property
     def congestion(self) -> zenoh.CongestionControl:
@@ -102,6 +106,9 @@ class Worker(threading.Thread):
         self._pending: dict[str, deque[Inbound]] = {}  # sensors asked for, their frames
         self._awaiting_cache: dict[str, Takeover] = {}  # restored, the vehicle's cache asked
         self._quiet = False
+        # vehicle/sensor -> causes already logged for it (once per sensor and cause while
+        # the sensor is held; forgotten at eviction, cleared whole past _WARNED_CAP).
+        self._warned: dict[str, set[Cause]] = {}
         self._next_snapshot = time.monotonic() + s.snapshot_interval_s
         self._next_checkpoint = time.monotonic() + s.checkpoint_interval_s
         self._next_housekeeping = time.monotonic() + HOUSEKEEPING_S
@@ -155,6 +162,7 @@ class Worker(threading.Thread):
         self.sensors.reclaimed_now = []
         for s in gone:
             self.outbox.forget(s.vehicle, s.sensor)
+            self._warned.pop(f"{s.vehicle}/{s.sensor}", None)
             self.custody.settled.discard(f"{s.vehicle}/{s.sensor}")
         self.custody.housekeeping()
         # A standby without any state of a sensor gets it now, not at the next interval.
@@ -320,6 +328,9 @@ class Worker(threading.Thread):
             r = Rejection(ErrorReason.KEY_MISMATCH, field_name, detail, seq, stamp_ns)
             self._refuse(item, vehicle, sensor, state, r)
             return
+        # Before the ordering rules: a stamp in seconds explains the refusals that follow.
+        if not self._quiet:  # the member before this one counted and logged it
+            self._plausible(vehicle, sensor, seq, decoded, item)
 
         arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
         bridged = False
@@ -412,6 +423,43 @@ class Worker(threading.Thread):
             tracks=len(wire),
             ms=round((t3 - t0) * 1e3, 3),
         )
+
+    def _plausible(
+        self, vehicle: str, sensor: str, seq: int, decoded: DecodedDetections, item: Inbound
+    ) -> None:
+        """Count (and log once per sensor and cause) what looks like a unit or convention
+        mistake; the frame is tracked all the same."""
+        frame = decoded.frame
+        found = check_frame(
+            decoded.boxes,
+            frame.stamp_ns,
+            item.received_ns,
+            has_pose=decoded.pose is not None,
+            codes=decoded.codes,
+            thresholds=self.ctx.start_thresholds,
+            key_frame=frame.key_frame,
+        )
+        if found:
+            self._warn(vehicle, sensor, seq, found)
+
+    def _warn(self, vehicle: str, sensor: str, seq: int, found: list[Finding]) -> None:
+        key = f"{vehicle}/{sensor}"
+        if key not in self._warned and len(self._warned) >= _WARNED_CAP:
+            self._warned.clear()  # sensor names come from the fleet: the memory stays bounded
+        warned = self._warned.setdefault(key, set())
+        for f in found:
+            self.ctx.metrics.count_implausible(f.cause, vehicle)
+            if f.cause not in warned:
+                warned.add(f.cause)
+                log.warning(
+                    "implausible_frame",
+                    vehicle=vehicle,
+                    sensor=sensor,
+                    seq=seq,
+                    cause=f.cause.value,
+                    likely=f.hint,
+                    value=f.value,
+                )
 
     def _undo(self, s: SensorState, frame: Arrival) -> None:
         """The last frame ran off the service's clock and this one, of the stream before

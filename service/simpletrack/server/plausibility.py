@@ -1,0 +1,194 @@
+"""Plausibility of a decoded detection frame: values the decoder accepts (they are within its
+hard bounds, schemas/README.md "Bounds") but that look like a unit or convention mistake
+upstream — millimetres, degrees, logits, stamps in seconds. Nothing here refuses a frame:
+the worker counts and logs what is found and tracks the frame exactly as before.
+
+Pure: numpy only, a few reductions per frame (docs/SERVICE.md, "Plausibility warnings").
+The thresholds are chosen against real detections: no frame of the KITTI PointRCNN or
+nuScenes CenterPoint data trips any of them (tests/server/test_plausibility.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.core.config import TrackerConfig
+from simpletrack.wire.columns import I32, BoxArrays
+
+F64 = npt.NDArray[np.float64]
+
+# Longest side of a box, median over the frame. Real frames peak at 5.2 m (nuScenes, 10k
+# frames) and a single box at 26.6 m (a trailer); the longest road vehicles (road trains,
+# articulated trams) stay under this. Millimetres and centimetres never get here: any side
+# over 100 m is refused by the decoder; what is left is decimetres, or a column mix-up.
+MAX_MEDIAN_SIZE_M = 30.0
+# How far apart two boxes of one frame can be, and how far from the sensor a box can be when
+# the frame has a pose (boxes then are in the sensor's frame). Lidar and radar see ~300 m;
+# real frames span at most 109 m. A frame in millimetres spans tens of kilometres.
+MAX_SPAN_M = 2000.0
+# Any |yaw| over this. Real yaws stay within ±π; a converter that shifts a [0, 2π) heading by
+# a quarter turn (camera rot_y to lidar yaw) legitimately reaches 2.5π. Degrees go past it
+# in nearly every frame with a few boxes (any heading over 7.9°).
+MAX_YAW_RAD = 2.5 * math.pi
+# A frame whose boxes can start no track at all is only suspicious when it has many boxes:
+# KITTI's PointRCNN frames in which no box reaches its class's score_high have at most 6.
+MIN_BOXES_UNDER_THRESHOLD = 16
+# Sensor stamp against the service's clock at receipt. Synchronised clocks (NTP, PTP) agree
+# to milliseconds; a minute apart is a wrong unit, a wrong clock or a replay.
+MAX_STAMP_OFFSET_S = 60.0
+_DAY_NS = 86_400 * 10**9
+
+
+class Cause(StrEnum):
+    """What looks wrong; the ``cause`` label of ``simpletrack_implausible_frames_total``."""
+
+    SIZE_UNIT = "size_unit"
+    CENTER_UNIT = "center_unit"
+    YAW_DEGREES = "yaw_degrees"
+    SCORE_RANGE = "score_range"
+    SCORE_UNDER_THRESHOLD = "score_under_threshold"
+    STAMP_SECONDS = "stamp_seconds"
+    STAMP_MILLISECONDS = "stamp_milliseconds"
+    STAMP_MICROSECONDS = "stamp_microseconds"
+    STAMP_OFFSET = "stamp_offset"
+
+
+@dataclass(frozen=True, slots=True)
+class Finding:
+    cause: Cause
+    hint: str  # the likely cause, for the log line
+    value: float  # the figure the hint quotes
+
+
+@dataclass(frozen=True, slots=True)
+class StartThresholds:
+    """The score a box needs to start a track (stage 1, ``score >= score_high``): per tracker
+    class code on key frames, one for every class on non-key frames."""
+
+    key: F64
+    non_key: float
+
+    @classmethod
+    def of(cls, config: TrackerConfig) -> StartThresholds:
+        key = [config.for_code(c).score_high for c in range(len(config.classes))]
+        return cls(np.array(key, dtype=np.float64), config.non_key.score_high)
+
+
+def check_frame(
+    boxes: BoxArrays,
+    stamp_ns: int,
+    received_ns: int,
+    *,
+    has_pose: bool = False,
+    codes: I32 | None = None,
+    thresholds: StartThresholds | None = None,
+    key_frame: bool = True,
+) -> list[Finding]:
+    """Every implausibility of one frame (empty: nothing looks wrong). ``codes`` are the
+    boxes' tracker class codes (-1: ignored class), needed with ``thresholds``."""
+    found = _stamp(stamp_ns, received_ns)
+    if not len(boxes):
+        return found
+    # The median (a sort) and the span only when one plain reduction says they could trip.
+    longest = 0.0
+    if float(boxes.size.max()) > MAX_MEDIAN_SIZE_M:
+        longest = float(np.median(boxes.size.max(axis=1)))
+    if longest > MAX_MEDIAN_SIZE_M:
+        found.append(
+            Finding(
+                Cause.SIZE_UNIT,
+                f"sizes look like another unit than metres, decimetres? (median longest side "
+                f"{longest:.1f}; road objects measure 0.2 to 25 m)",
+                longest,
+            )
+        )
+    xy = boxes.center[:, :2]
+    far = float(np.abs(xy).max())
+    span = float((xy.max(axis=0) - xy.min(axis=0)).max()) if far > MAX_SPAN_M / 2 else 0.0
+    far = far if has_pose else 0.0
+    if max(span, far) > MAX_SPAN_M:
+        what = f"boxes span {span:.0f}" if span >= far else f"a box is {far:.0f} from the sensor"
+        found.append(
+            Finding(
+                Cause.CENTER_UNIT,
+                f"centres look like millimetres ({what}; no sensor sees beyond ~300 m)",
+                max(span, far),
+            )
+        )
+    yaw = float(np.abs(boxes.yaw).max())
+    if yaw > MAX_YAW_RAD:
+        found.append(
+            Finding(
+                Cause.YAW_DEGREES, f"yaw looks like degrees (max |yaw| {yaw:.1f}; radians)", yaw
+            )
+        )
+    found += _scores(boxes, codes, thresholds, key_frame)
+    return found
+
+
+def _scores(
+    boxes: BoxArrays, codes: I32 | None, thresholds: StartThresholds | None, key_frame: bool
+) -> list[Finding]:
+    lo, hi = float(boxes.score.min()), float(boxes.score.max())
+    found = []
+    if lo < 0.0 or hi > 1.0:
+        # Only logits go negative; over 1 and never negative may be percentages too.
+        figure, which, like = (
+            (lo, "min", "logits") if lo < 0.0 else (hi, "max", "logits or percentages")
+        )
+        found.append(
+            Finding(
+                Cause.SCORE_RANGE,
+                f"scores look like {like} ({which} {figure:g}); scores are probabilities in [0, 1]",
+                figure,
+            )
+        )
+    if codes is None or thresholds is None:
+        return found
+    tracked = codes >= 0
+    n = int(tracked.sum())
+    if n < MIN_BOXES_UNDER_THRESHOLD:
+        return found
+    score = boxes.score[tracked]
+    need = thresholds.key[codes[tracked]] if key_frame else np.full(n, thresholds.non_key)
+    if not (score >= need).any():
+        lowest = float(need.min())
+        found.append(
+            Finding(
+                Cause.SCORE_UNDER_THRESHOLD,
+                f"every score is under the tracker's lowest threshold {lowest:g} (max score "
+                f"{float(score.max()):g} of {n} boxes): no track can start",
+                float(score.max()),
+            )
+        )
+    return found
+
+
+def _stamp(stamp_ns: int, received_ns: int) -> list[Finding]:
+    offset_s = (received_ns - stamp_ns) * 1e-9
+    if abs(offset_s) <= MAX_STAMP_OFFSET_S:
+        return []
+    # Read as another unit, does the stamp land within a day of the receipt? Then that unit
+    # is the likely one (a day: clocks that are off as well still read as the unit).
+    for cause, unit, scale in (
+        (Cause.STAMP_SECONDS, "seconds", 10**9),
+        (Cause.STAMP_MILLISECONDS, "milliseconds", 10**6),
+        (Cause.STAMP_MICROSECONDS, "microseconds", 10**3),
+    ):
+        if abs(stamp_ns * scale - received_ns) < _DAY_NS:
+            hint = f"stamp looks like {unit} (stamp_ns {stamp_ns}); stamp_ns is nanoseconds"
+            return [Finding(cause, hint, float(stamp_ns))]
+    ahead = "behind" if offset_s > 0 else "ahead of"
+    hint = (
+        f"the vehicle's clock is {abs(offset_s):.0f} s {ahead} the service's, or this is a "
+        f"replay (stamps since boot count too)"
+    )
+    return [Finding(Cause.STAMP_OFFSET, hint, offset_s)]
+
+
+__all__ = ["Cause", "Finding", "StartThresholds", "check_frame"]
