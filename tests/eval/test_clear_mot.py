@@ -95,3 +95,17 @@ def test_memory_of_departed_truth_is_bounded() -> None:
     for k in range(200):
         s.update([k], boxes((0, 0, 0)), [k], boxes((0, 0, 0)))
     assert len(s._last) <= 60
+
+
+def test_ids_per_object_counts_distinct_track_ids_of_each_truth_object() -> None:
+    s = MotScorer()
+    # Truth 1: tracks 7, 8, then 7 again (2 distinct ids, 2 switches); truth 2: track 9 only.
+    for tid in (7, 8, 7):
+        s.update([1, 2], boxes((0, 0, 0), (20, 0, 0)), [tid, 9], boxes((0, 0, 0), (20, 0, 0)))
+    c = s.counts
+    assert (c.ids, c.objects, c.id_links) == (2, 2, 3)
+    assert c.ids_per_object == pytest.approx(1.5)
+    # Ignored matches say nothing about identity; no matched truth: NaN.
+    t = MotScorer()
+    t.update([3], boxes((0, 0, 0)), [4], boxes((0, 0, 0)), truth_ignore=[True])
+    assert t.counts.objects == 0 and math.isnan(t.counts.ids_per_object)

@@ -14,6 +14,9 @@ Definitions (per frame, then summed):
   matched to (in any earlier frame, ignored or not). A truth object's memory is forgotten after
   ``forget_after`` frames unseen, which bounds the scorer's state.
 - MOTA = 1 - (FN + FP + IDS) / gt; MOTP = mean centre distance (or mean IoU) over the TPs.
+- Ids per object: the distinct track ids each truth object was matched to (non-ignored
+  matches), averaged over the truth objects matched at least once; 1.0 is a perfect tracker.
+  A truth object forgotten (above) and seen again counts as a new object.
 
 Ids only need to be unique within one scorer: use one scorer per track stream, and add the
 ``MotCounts`` of several scorers for a fleet-wide figure.
@@ -53,6 +56,8 @@ class MotCounts:
     ids: int = 0
     ignored: int = 0
     match_quality: float = 0.0  # summed distance (CENTRE) or IoU (IOU_3D) over TPs
+    objects: int = 0  # distinct truth objects matched (non-ignored)
+    id_links: int = 0  # distinct (truth object, track id) pairs among those matches
 
     def __add__(self, other: MotCounts) -> MotCounts:
         return MotCounts(
@@ -64,6 +69,8 @@ class MotCounts:
             ids=self.ids + other.ids,
             ignored=self.ignored + other.ignored,
             match_quality=self.match_quality + other.match_quality,
+            objects=self.objects + other.objects,
+            id_links=self.id_links + other.id_links,
         )
 
     @property
@@ -76,6 +83,10 @@ class MotCounts:
     @property
     def motp(self) -> float:
         return self.match_quality / self.tp if self.tp else float("nan")
+
+    @property
+    def ids_per_object(self) -> float:
+        return self.id_links / self.objects if self.objects else float("nan")
 
     @property
     def recall(self) -> float:
@@ -102,6 +113,7 @@ class MotScorer:
     forget_after: int = 100
     counts: MotCounts = field(default_factory=MotCounts)
     _last: dict[int, _Memory] = field(default_factory=dict)
+    _links: dict[int, set[int]] = field(default_factory=dict)  # truth id -> its track ids
 
     def update(
         self,
@@ -143,6 +155,11 @@ class MotScorer:
             memory = self._last.get(g)
             if c and memory is not None and memory.track_id != t:
                 out.ids += 1
+            if c:
+                links = self._links.setdefault(g, set())
+                out.objects += not links
+                out.id_links += t not in links
+                links.add(t)
             self._last[g] = _Memory(t, frame)
         for g in gids.tolist():
             if g in self._last:
@@ -166,3 +183,4 @@ class MotScorer:
         stale = [g for g, m in self._last.items() if frame - m.last_frame > self.forget_after]
         for g in stale:
             del self._last[g]
+            self._links.pop(g, None)

@@ -32,15 +32,16 @@ from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import DetectionPublisher
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
 from simpletrack.core.boxes import Boxes
-from simpletrack.core.config import preset
 from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_to_json
 from simpletrack.session import ZenohOptions, open_session
+from simpletrack.sim.baseline import detections_alone
 from simpletrack.sim.demo_stats import FleetStats
+from simpletrack.sim.demo_tracker import DEMO_PRESET as DEMO_PRESET
+from simpletrack.sim.demo_tracker import demo_tracker_config, write_class_overrides
 from simpletrack.sim.simulator import FleetSimulator, SensorFrame, SimConfig
 from simpletrack.spawn import free_port
 from simpletrack.wire import BoxArrays, FrameError, WireTrackState
 
-DEMO_PRESET = "wod"  # the simulator's classes: vehicle, pedestrian, cyclist
 TRUTH_HORIZON = 200  # frames of truth kept per stream while waiting for its tracks
 
 
@@ -93,9 +94,12 @@ class _Service:
         self._proc: subprocess.Popen[bytes] | None = None
         self._log_file: Any = None
         self._temp_log: Path | None = None  # removed after a clean stop
+        self._overrides: Path | None = None  # the demo's tracker settings, removed at stop
 
     def start(self) -> None:
         o = self.options
+        if o.service is not ServiceMode.EXTERNAL:
+            self._overrides = write_class_overrides()
         if o.service is ServiceMode.INPROCESS:
             from simpletrack.server.app import Service
             from simpletrack.server.settings import load_settings
@@ -105,6 +109,7 @@ class _Service:
                 None,
                 {
                     "preset": DEMO_PRESET,
+                    "class_overrides": self._overrides,
                     "prefix": o.prefix,
                     "instance": "demo",
                     "zenoh": {"mode": "peer", "listen": [self.endpoint], "connect": []},
@@ -127,6 +132,7 @@ class _Service:
                 sys.executable, "-c", "import sys; from simpletrack.cli.main import main; sys.exit(main())",
                 "serve",
                 "--listen", self.endpoint, "--preset", DEMO_PRESET, "--prefix", o.prefix,
+                "--class-overrides", str(self._overrides),
                 "--instance", "demo", "--metrics-port", str(o.metrics_port),
                 "--log-level", "warning",
             ]  # fmt: skip
@@ -167,6 +173,9 @@ class _Service:
             self._log_file = None
         if clean and self._temp_log is not None:
             self._temp_log.unlink(missing_ok=True)
+        if self._overrides is not None:
+            self._overrides.unlink(missing_ok=True)
+            self._overrides = None
 
 
 def _quiet_service_logs(path: Path | None) -> None:
@@ -205,6 +214,8 @@ class _Truth:
     ids: npt.NDArray[np.int64]
     boxes: Boxes
     ignore: npt.NDArray[np.bool_]
+    detections: Boxes  # what was sent (sensor frame), for the baseline
+    pose: npt.NDArray[np.float64]
 
 
 class FleetDemo:
@@ -216,8 +227,9 @@ class FleetDemo:
         self.stop_event = threading.Event()
         self._truth: dict[tuple[str, str], dict[int, _Truth]] = {}
         self._errors: Mailbox[FrameError] = Mailbox(100_000)
-        self.class_names = preset(DEMO_PRESET).class_names
-        options.sim.check_tracker_config(preset(DEMO_PRESET))
+        self.tracker_config = demo_tracker_config()
+        self.class_names = self.tracker_config.class_names
+        options.sim.check_tracker_config(self.tracker_config)
         self._rng = np.random.default_rng(options.sim.seed + 1)
         self._tracks_out: JsonlWriter | None = None
         self._truth_out: JsonlWriter | None = None
@@ -357,7 +369,7 @@ class FleetDemo:
         else:
             pub.publish(f.detections, stamp_ns=stamp_ns, pose=f.pose, seq=f.seq)
             pending = self._truth.setdefault(stream, {})
-            pending[f.seq] = _Truth(f.truth_ids, f.truth, f.truth_ignore)
+            pending[f.seq] = _Truth(f.truth_ids, f.truth, f.truth_ignore, f.detections, f.pose)
             for old in [s for s in pending if s < f.seq - TRUTH_HORIZON]:
                 del pending[old]  # its tracks never came: lost, not leaked
         if self._truth_out is not None:
@@ -394,6 +406,9 @@ class FleetDemo:
         truth = self._truth.get((msg.vehicle, msg.sensor), {}).pop(msg.seq, None)
         if truth is not None:
             st.scorer.update(truth.ids, truth.boxes, ids, msg.boxes(self.class_names), truth.ignore)
+            # The same frame's detections, as if they were the output: what tracking adds.
+            alone = detections_alone(truth.detections, truth.pose, self.tracker_config)
+            st.score_baseline(truth.ids, truth.boxes, alone, truth.ignore)
         if self._tracks_out is not None:
             self._tracks_out.write(message_to_json(msg.frame, msg.tracks))
 

@@ -9,7 +9,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from simpletrack.core.boxes import Boxes
 from simpletrack.eval.clear_mot import MotCounts, MotScorer
+from simpletrack.sim.baseline import without_identity
 
 F64 = npt.NDArray[np.float64]
 
@@ -67,6 +69,9 @@ class StreamStats:
     recent_latency: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=256))
     scorer: MotScorer = field(default_factory=MotScorer)
+    # The raw detections of the same frames, scored as if they were the output (baseline.py).
+    baseline: MotScorer = field(default_factory=MotScorer)
+    detection_ids: int = 0  # fresh ids handed to the baseline's boxes so far
 
     def on_tracks(
         self, now: float, latency_s: float, ids: npt.NDArray[np.int64], confirmed: int
@@ -81,6 +86,13 @@ class StreamStats:
             self.max_id = int(new.max())
         self.recent_latency.append(latency_s)
         self.arrivals.append(now)
+
+    def score_baseline(
+        self, truth_ids: npt.NDArray[np.int64], truth: Boxes, boxes: Boxes, ignore: npt.ArrayLike
+    ) -> None:
+        ids = np.arange(self.detection_ids, self.detection_ids + len(boxes), dtype=np.int64)
+        self.detection_ids += len(boxes)
+        self.baseline.update(truth_ids, truth, ids, boxes, ignore)
 
     def rate(self, now: float, window: float = 2.0) -> float:
         """Track frames per second over the last ``window`` seconds."""
@@ -127,3 +139,13 @@ class FleetStats:
     @property
     def mot(self) -> MotCounts:
         return sum((s.scorer.counts for s in self.streams.values()), MotCounts())
+
+    @property
+    def baseline_fresh_ids(self) -> MotCounts:
+        """The detections alone, each box its own one-frame id."""
+        return sum((s.baseline.counts for s in self.streams.values()), MotCounts())
+
+    @property
+    def baseline_mot(self) -> MotCounts:
+        """The detections alone, no identity: IDS not counted (see baseline.py)."""
+        return without_identity(self.baseline_fresh_ids)

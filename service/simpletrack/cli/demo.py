@@ -14,17 +14,21 @@ from simpletrack.cli.errors import UserError
 from simpletrack.session import ZenohOptions, add_zenoh_args
 
 EPILOG = """\
-Starts the tracking service (preset "wod": vehicle, pedestrian, cyclist) on an embedded Zenoh
+Starts the tracking service (preset "wod": vehicle, pedestrian, cyclist, with the demo's
+settings of simpletrack.sim.demo_tracker, chosen on seed 1) on an embedded Zenoh
 peer listening on a free loopback port, and a simulated fleet: every vehicle drives its own
 loop with its sensors (a 360-degree lidar and a front sensor); objects move, turn, hide behind
-each other and come and go; the detector adds noise, misses, false positives, low scores and
-duplicate boxes. Each sensor publishes its detections with its pose; a planner-side subscriber
+each other and come and go; the detector adds noise, misses in bursts, false positives, low
+scores and duplicate boxes. Each sensor publishes its detections with its pose; a planner-side subscriber
 receives the tracks of the whole fleet and scores them against the simulator's ground truth.
 
 The live view (on a terminal) shows per sensor: track frames received / published, frame
 rate, end-to-end latency p50/p99 (sensor stamp to planner), active tracks, rejected frames,
 and the running MOTA and ID switches. The summary is printed at the end, also when the output
-is not a terminal. Ctrl-C ends the demo cleanly (exit 0, with the summary).
+is not a terminal; it scores the tracks next to the raw detections of the same frames (kept
+at the preset's score_high, after NMS, without ids) and ends in one line: frames tracked,
+latency, MOTA (detections alone), IDS, ids per object. Ctrl-C ends the demo cleanly (exit 0,
+with the summary).
 
 Exit code: 0 when tracks came back (or on Ctrl-C); 1 when the service failed or nothing was
 tracked; 2 on bad arguments.
