@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from simpletrack.sim.demo import DemoOptions, FleetDemo, ServiceMode
+from simpletrack.sim.demo import DemoOptions, DemoResult, FleetDemo, ServiceMode
 from simpletrack.sim.simulator import SimConfig
 from tests.service_helpers import ROOT
 
@@ -123,3 +123,32 @@ def test_the_tracker_settings_sweep_refuses_the_demos_seed(
         main(["--seed", "0"])
     assert exc.value.code == 2
     assert "seed 0 is the seed the demo reports" in capsys.readouterr().err
+
+
+def test_the_demo_serves_its_fleet_in_the_browser_view_and_loses_no_frame() -> None:
+    """The view is a planner of its own: every sensor's tracks, detections and field of view
+    appear while the demo runs, and its detections subscriber never passes for the service
+    (the first frames were once sent before the service listened, and went unanswered)."""
+    import urllib.request
+
+    seen: list[dict[str, object]] = []
+
+    def on_tick(result: DemoResult) -> None:
+        if result.view_url and result.elapsed > 2.0 and not seen:
+            url = result.view_url.split("?")[0] + "state.json"
+            with urllib.request.urlopen(url, timeout=5) as reply:
+                seen.append(json.loads(reply.read()))
+
+    demo = FleetDemo(DemoOptions(sim=SimConfig(seed=3, vehicles=2), duration=4.0, view_port=0))
+    result = demo.run(on_tick)
+    assert result.view_url is not None and "?sensor=veh00/lidar" in result.view_url
+    assert seen, "the view never answered"
+    sensors = seen[0]["sensors"]
+    assert isinstance(sensors, dict)
+    assert set(sensors) == {f"veh0{v}/{s}" for v in range(2) for s in ("lidar", "front")}
+    for name, s in sensors.items():
+        assert s["tracks"], name
+        assert s["detections"]["boxes"], name
+        assert s["fov"]["deg"] == (360.0 if name.endswith("lidar") else 100.0)
+    assert result.unanswered == 0
+    assert result.stats.tracked == result.stats.sent

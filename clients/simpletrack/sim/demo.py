@@ -38,8 +38,9 @@ from simpletrack.sim.baseline import detections_alone
 from simpletrack.sim.demo_stats import FleetStats
 from simpletrack.sim.demo_tracker import DEMO_PRESET as DEMO_PRESET
 from simpletrack.sim.demo_tracker import demo_tracker_config, write_class_overrides
-from simpletrack.sim.simulator import FleetSimulator, SensorFrame, SimConfig
+from simpletrack.sim.simulator import FleetSimulator, SensorFrame, SimConfig, vehicle_id
 from simpletrack.spawn import free_port
+from simpletrack.view import Fov, PortInUse, ViewServer, serve_view
 from simpletrack.wire import BoxArrays, FrameError, WireTrackState
 
 TRUTH_HORIZON = 200  # frames of truth kept per stream while waiting for its tracks
@@ -67,6 +68,7 @@ class DemoOptions:
     metrics_port: int = 0
     service_log: Path | None = None
     drain_s: float = 2.0  # after the last frame, wait this long for its tracks
+    view_port: int | None = 8090  # the browser view's port (0: any free one; None: no view)
 
 
 @dataclass
@@ -78,6 +80,7 @@ class DemoResult:
     service: ServiceMode
     stopped_by: str
     unanswered: int = 0
+    view_url: str | None = None  # the live view in the browser, when it runs
 
 
 def free_endpoint() -> str:
@@ -242,6 +245,11 @@ class FleetDemo:
         endpoint = o.listen or free_endpoint()
         service = _Service(o, endpoint)
         client = o.client or ZenohOptions(connect=[endpoint])
+        # The fleet's session listens and the view's connects to it: peers do not pass on
+        # each other's samples, so the view hears detections straight from the publishers.
+        fleet_listen = free_endpoint() if o.view_port is not None and o.client is None else None
+        if fleet_listen is not None:
+            client = ZenohOptions(connect=[endpoint], listen=[fleet_listen])
         if o.service is ServiceMode.EXTERNAL:
             endpoint = ", ".join(client.connect) or "(scouting)"
         if o.record is not None:
@@ -249,6 +257,8 @@ class FleetDemo:
             self._truth_out = JsonlWriter(o.record / "truth.jsonl")
         result = DemoResult(self.stats, 0.0, 0, endpoint, o.service, "duration")
         session = None
+        view: ViewServer | None = None
+        view_session = None
         try:
             service.start()
             session = open_session(client)
@@ -278,11 +288,22 @@ class FleetDemo:
                     raise RuntimeError(f"no tracking service answered on {endpoint}")
             if o.service is ServiceMode.EXTERNAL:
                 self._check_external(session)
+            if o.view_port is not None:
+                # Only now: the view's detections subscriber would pass for the service in
+                # wait_for_service, and the first frames would go before it listens.
+                view_options = o.client or ZenohOptions(
+                    connect=[endpoint, *([fleet_listen] if fleet_listen else [])]
+                )
+                view_session, view = self._start_view(view_options, result)
             result.stopped_by = self._loop(sim, pubs, sub, service, result, on_tick)
             self._drain(sub, o.drain_s)
             result.unanswered = self._unanswered()
             sub.close()
         finally:
+            if view is not None:
+                view.close()
+            if view_session is not None:
+                view_session.close()
             if session is not None:
                 session.close()  # type: ignore[no-untyped-call]
             service.stop()
@@ -290,6 +311,27 @@ class FleetDemo:
                 if w is not None:
                     w.close()
         return result
+
+    def _start_view(self, options: ZenohOptions, result: DemoResult) -> tuple[Any, ViewServer]:
+        """The browser view on a Zenoh session of its own, like any planner's: tracks and
+        detections of the whole fleet, each sensor's field of view from the simulator. (On
+        the publishers' own session, its detections subscriber cost the service frames.) A
+        taken port is not worth failing the demo for: any free port then, said in the URL."""
+        port = self.options.view_port or 0
+        fov = {s.name: Fov(s.fov_deg, s.max_range) for s in self.options.sim.sensors}
+        prefix = self.options.prefix
+        session = open_session(options)
+        try:
+            try:
+                view = serve_view(session, prefix, port=port, detections=True, fov=fov)
+            except PortInUse:
+                view = serve_view(session, prefix, port=0, detections=True, fov=fov)
+        except BaseException:
+            session.close()  # type: ignore[no-untyped-call]
+            raise
+        first = f"{vehicle_id(0)}/{self.options.sim.sensors[0].name}"
+        result.view_url = f"{view.url}?sensor={first}"
+        return session, view
 
     def _check_external(self, session: Any) -> None:
         """A running service must track the simulator's classes, or every frame is refused."""

@@ -90,6 +90,9 @@ def live_view(result: DemoResult, options: DemoOptions) -> Group:
         "(same class, centre within 2 m, Hungarian per frame)",
         style="dim",
     )
+    if result.view_url:
+        view = Text.assemble("browser view: ", (result.view_url, "underline cyan"))
+        return Group(header, view, table, note)
     return Group(header, table, note)
 
 

@@ -22,6 +22,8 @@ each other and come and go; the detector adds noise, misses in bursts, false pos
 scores and duplicate boxes. Each sensor publishes its detections with its pose; a planner-side subscriber
 receives the tracks of the whole fleet and scores them against the simulator's ground truth.
 
+The browser view (http://127.0.0.1:8090/ unless --view-port or --no-view; docs/VIEW.md) draws
+each sensor's tracks and detections from above, live, as a planner receives them.
 The live view (on a terminal) shows per sensor: track frames received / published, frame
 rate, end-to-end latency p50/p99 (sensor stamp to planner), active tracks, rejected frames,
 and the running MOTA and ID switches. The summary is printed at the end, also when the output
@@ -81,6 +83,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     p.add_argument("--service-log", type=Path, metavar="FILE", help="the service's log file")
     p.add_argument("--no-live", action="store_true", help="no live view, even on a terminal")
+    p.add_argument(
+        "--view-port",
+        type=int,
+        default=8090,
+        help="port of the bird's-eye view in the browser (default 8090; taken: any free one; "
+        "0: any free one)",
+    )
+    p.add_argument("--no-view", action="store_true", help="no browser view")
     add_zenoh_args(p)
     p.set_defaults(func=run)
 
@@ -95,6 +105,8 @@ def _options(args: argparse.Namespace) -> object:
         raise UserError(f"--inject-errors {args.inject_errors:g} must be between 0 and 1")
     if not 0 <= args.metrics_port <= 65535:
         raise UserError(f"--metrics-port {args.metrics_port} is not a port number")
+    if not 0 <= args.view_port <= 65535:
+        raise UserError(f"--view-port {args.view_port} is not a port number")
     try:
         sim = SimConfig(
             seed=args.seed, vehicles=args.vehicles, objects=args.objects, rate_hz=args.rate
@@ -135,6 +147,7 @@ def _options(args: argparse.Namespace) -> object:
         record=args.record,
         metrics_port=args.metrics_port,
         service_log=args.service_log,
+        view_port=None if args.no_view else args.view_port,
     )
 
 
@@ -167,6 +180,8 @@ def run(args: argparse.Namespace) -> int:
                 + (f"{options.duration:g} s" if options.duration else "Ctrl-C to stop"),
                 flush=True,
             )
+            if result.view_url:
+                print(f"demo: live view in the browser: {result.view_url}", flush=True)
         elif result.elapsed - last_plain[0] >= 5.0:
             # Not a terminal: a progress line every 5 s instead of the live table.
             last_plain[0] = result.elapsed
