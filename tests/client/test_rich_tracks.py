@@ -114,5 +114,3 @@ def test_tracks_schema_version_1_publishes_what_a_version_1_reader_takes(
 def test_an_unknown_tracks_schema_version_is_refused_at_startup(tmp_path: Path) -> None:
     with pytest.raises(AssertionError, match="tracks_schema_version"):
         start_service(tmp_path, instance="rich-v3", env={"SIMPLETRACK_TRACKS_SCHEMA_VERSION": "3"})
-
-

@@ -12,8 +12,13 @@ import msgpack
 import numpy as np
 import pytest
 
-from simpletrack.wire import Rejection, TrackArrays, decode_track_frame, encode_track_frame
-from simpletrack.wire import generate
+from simpletrack.wire import (
+    Rejection,
+    TrackArrays,
+    decode_track_frame,
+    encode_track_frame,
+    generate,
+)
 from simpletrack.wire.columns import covariance_from_upper, covariance_to_upper
 from simpletrack.wire.fields import Invalid
 from simpletrack.wire.messages import TRACK_FRAME_V1

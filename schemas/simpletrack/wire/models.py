@@ -193,8 +193,10 @@ class TrackFrame(TrackFrameV1):
 
     ``seq`` and ``stamp_ns`` echo the detection frame's."""
 
-    schema_version: Literal[2] = Field(description="2 for this layout (1: TrackFrameV1)")
-    tracks: TrackColumns  # type: ignore[assignment]
+    schema_version: Literal[2] = Field(  # type: ignore[assignment]  # v1 is a separate model
+        description="2 for this layout (1: TrackFrameV1)"
+    )
+    tracks: TrackColumns
 
 
 class FrameError(WireModel):
