@@ -195,6 +195,32 @@ def test_tracks_become_tracked_objects_rosbags_reads() -> None:
         np.testing.assert_allclose([d.x, d.y, d.z], t.size[i])
 
 
+def test_version_2_covariance_fills_the_pose_and_twist_covariances() -> None:
+    from dataclasses import replace
+
+    from simpletrack.wire.columns import covariance_to_upper
+
+    cov = np.zeros((2, 6, 6))
+    cov[:] = np.diag([0.5, 0.25, 0.125, 4.0, 1.0, 2.0])
+    cov[:, 3, 4] = cov[:, 4, 3] = 0.5
+    t = replace(_tracks(), covariance=covariance_to_upper(cov))
+    msg = tracks_to_tracked_objects(
+        t, vehicle="v", sensor="s", stamp_ns=1, frame_id="f", labels=label_map("kitti")
+    )
+    out = R.deserialize(encode_tracked_objects(msg), R.TRACKED)
+    for i, o in enumerate(out.objects):
+        pose = np.asarray(o.kinematics.pose_with_covariance.covariance).reshape(6, 6)
+        twist = np.asarray(o.kinematics.twist_with_covariance.covariance).reshape(6, 6)
+        np.testing.assert_array_equal(pose[:3, :3], cov[i, :3, :3])
+        assert not pose[3:].any() and not pose[:, 3:].any()  # orientation: not given
+        # The twist is in the object's frame: its covariance turns with it, z unchanged.
+        yaw = float(t.yaw[i])
+        r = np.array([[math.cos(yaw), math.sin(yaw)], [-math.sin(yaw), math.cos(yaw)]])
+        np.testing.assert_allclose(twist[:2, :2], r @ cov[i, 3:5, 3:5] @ r.T, atol=1e-6)
+        assert twist[2, 2] == pytest.approx(2.0)
+        assert not twist[3:].any() and not twist[:, 3:].any()
+
+
 def test_a_class_outside_the_map_is_unknown() -> None:
     msg = tracks_to_tracked_objects(
         _tracks(), vehicle="v", sensor="s", stamp_ns=1, frame_id="f", labels=label_map("CAR=Car")

@@ -63,7 +63,8 @@ _STATUS = {
 }
 BASES: dict[str, dict[str, Any]] = {
     "DetectionFrame": _unpacked(generate.VECTORS["detection_full"][1]()),
-    "TrackFrame": _unpacked(generate._tracks()),
+    "TrackFrame": _unpacked(generate._tracks(2)),
+    "TrackFrameV1": _unpacked(generate._tracks(1)),
     "FrameError": _unpacked(generate._error()),
     "ServiceStatus": {
         "schema_version": 1,
@@ -92,6 +93,7 @@ BASES: dict[str, dict[str, Any]] = {
 MODELS: dict[str, type[BaseModel]] = {
     "DetectionFrame": models.DetectionFrame,
     "TrackFrame": models.TrackFrame,
+    "TrackFrameV1": models.TrackFrameV1,
     "FrameError": models.FrameError,
     "ServiceStatus": models.ServiceStatus,
     "SensorSnapshot": models.SensorSnapshot,

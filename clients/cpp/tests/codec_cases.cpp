@@ -4,7 +4,9 @@
 // Python decoder's verdicts on thousands of mutated payloads.
 #include <simpletrack/wire.hpp>
 
+#include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <functional>
 #include <limits>
@@ -306,6 +308,60 @@ void frame_errors() {
   CHECK(threw);
 }
 
+wire::TrackFrame two_tracks() {
+  wire::TrackFrame f;
+  f.vehicle = "veh-1", f.sensor = "lidar", f.seq = 3, f.stamp_ns = 9, f.frame_id = "world";
+  f.instance = "svc", f.received_ns = 10, f.published_ns = 11;
+  wire::TrackColumns& t = f.tracks;
+  t.classes = {"Car"};
+  t.id = {7, std::int64_t{1} << 40};
+  t.class_index = {0, 0};
+  t.center = {{1.0f, 2.0f, 0.5f}, {3.0f, 4.0f, 0.5f}};
+  t.size = {{4.0f, 2.0f, 1.5f}, {4.0f, 2.0f, 1.5f}};
+  t.yaw = {0.0f, 0.5f};
+  t.score = {0.9, 0.5};
+  t.velocity = {{0.0f, 0.0f, 0.0f}, {1.0f, 0.0f, 0.0f}};
+  t.state = {1, 0}, t.hits = {3, 1}, t.age = {4, 0}, t.time_since_update = {0, 0};
+  return f;
+}
+
+void track_versions() {
+  wire::TrackFrame v1 = two_tracks();
+  const auto d1 = wire::decode_track_frame(wire::encode(v1));  // no ages: version 1
+  CHECK(d1.ok() && d1.value().schema_version == 1 && !d1.value().tracks.age_s);
+  wire::TrackFrame v2 = two_tracks();
+  std::array<float, 21> upper{};
+  for (std::size_t i = 0; i < upper.size(); ++i) upper[i] = static_cast<float>(i);
+  v2.tracks.covariance = std::vector<std::array<float, 21>>{upper, upper};
+  v2.tracks.age_s = std::vector<double>{0.4, 12.5};
+  v2.tracks.time_since_update_s = std::vector<double>{0.0, 0.1};
+  const Bytes b2 = wire::encode(v2);
+  const auto d2 = wire::decode_track_frame(b2);
+  CHECK(d2.ok() && d2.value().schema_version == 2);
+  if (d2.ok()) {
+    CHECK(d2.value().tracks.covariance == v2.tracks.covariance);
+    CHECK(d2.value().tracks.age_s == v2.tracks.age_s);
+    CHECK(wire::encode(d2.value()) == b2);
+  }
+  // Asked for version 1, the encoder leaves version 2's columns out.
+  v2.schema_version = 1;
+  const auto back = wire::decode_track_frame(wire::encode(v2));
+  CHECK(back.ok() && !back.value().tracks.covariance && !back.value().tracks.age_s);
+  // Version 2 needs its ages; no version 3.
+  wire::TrackFrame bad = two_tracks();
+  bad.schema_version = 2;
+  bool threw = false;
+  try {
+    (void)wire::encode(bad);
+  } catch (const wire::EncodeError&) {
+    threw = true;
+  }
+  CHECK(threw);
+  CHECK(wire::covariance_at(upper, 0, 5) == 5.0f && wire::covariance_at(upper, 1, 1) == 6.0f);
+  CHECK(wire::covariance_at(upper, 4, 1) == 9.0f && wire::covariance_at(upper, 5, 5) == 20.0f);
+  CHECK(v1.global_id(1) == "veh-1/lidar/1099511627776");
+}
+
 }  // namespace
 
 int main() {
@@ -318,5 +374,6 @@ int main() {
   class_tables();
   caps();
   frame_errors();
+  track_versions();
   return check::summary("codec_cases");
 }

@@ -96,6 +96,14 @@ wire::TrackFrame track(const json& d) {
   f.tracks.hits = values<std::int32_t>(t.at("hits"));
   f.tracks.age = values<std::int32_t>(t.at("age"));
   f.tracks.time_since_update = values<std::int32_t>(t.at("time_since_update"));
+  f.schema_version = d.at("schema_version").get<int>();
+  if (t.contains("covariance") && !t.at("covariance").is_null()) {
+    f.tracks.covariance = rows<21>(t.at("covariance"));
+  }
+  if (t.contains("age_s")) f.tracks.age_s = values<double>(t.at("age_s"));
+  if (t.contains("time_since_update_s")) {
+    f.tracks.time_since_update_s = values<double>(t.at("time_since_update_s"));
+  }
   return f;
 }
 

@@ -53,22 +53,31 @@ fn detection_json(d: &DetectionFrame) -> Value {
     })
 }
 
-fn tracks_json(c: &TrackColumns) -> Value {
-    json!({
+fn tracks_json(c: &TrackColumns, version: u64) -> Value {
+    let mut v = json!({
         "count": c.count(), "classes": c.classes, "id": c.id, "class_index": c.class_index,
         "center": rows(&c.center), "size": rows(&c.size), "yaw": floats(&c.yaw),
         "score": floats(&c.score), "velocity": rows(&c.velocity), "state": c.state,
         "hits": c.hits, "age": c.age, "time_since_update": c.time_since_update,
-    })
+    });
+    if version >= 2 {
+        v["covariance"] = c.covariance.as_ref().map_or(Value::Null, |m| rows(m));
+        v["age_s"] = c.age_s.as_ref().map_or(Value::Null, |a| floats(a));
+        v["time_since_update_s"] = c
+            .time_since_update_s
+            .as_ref()
+            .map_or(Value::Null, |a| floats(a));
+    }
+    v
 }
 
 fn track_frame_json(t: &TrackFrame) -> Value {
     json!({
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": t.schema_version,
         "vehicle": t.vehicle, "sensor": t.sensor, "seq": t.seq, "stamp_ns": t.stamp_ns,
         "frame_id": t.frame_id, "pose": pose(&t.pose), "key_frame": t.key_frame,
         "instance": t.instance, "received_ns": t.received_ns, "published_ns": t.published_ns,
-        "tracks": tracks_json(&t.tracks),
+        "tracks": tracks_json(&t.tracks, t.schema_version),
     })
 }
 

@@ -43,6 +43,7 @@ from simpletrack.client.publisher import _close_quietly, check_name, default_opt
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.wire import Rejection, TrackArrays, TrackFrame, decode_track_frame
 from simpletrack.wire.keys import Keys
+from simpletrack.wire.track_ids import global_id, global_ids
 
 if TYPE_CHECKING:
     from simpletrack.wire.convert import Boxes
@@ -94,6 +95,21 @@ class TrackMessage:
         from simpletrack.wire.convert import track_boxes_from_wire
 
         return track_boxes_from_wire(self.tracks, classes)
+
+    def global_id(self, i: int) -> str:
+        """Track i's fleet-unique id ``<vehicle>/<sensor>/<id>`` (schemas/README.md, "Track
+        identity"): the same for as long as the track lives, never given to another track."""
+        return global_id(self.frame.vehicle, self.frame.sensor, int(self.tracks.id[i]))
+
+    @property
+    def global_ids(self) -> list[str]:
+        """Every track's ``global_id``, in column order."""
+        return global_ids(self.frame.vehicle, self.frame.sensor, self.tracks.id)
+
+    @property
+    def schema_version(self) -> int:
+        """1 or 2; only 2 carries ``tracks.covariance``, ``age_s`` and ``time_since_update_s``."""
+        return self.frame.schema_version
 
     def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
         """Track ids, in the order of ``boxes(classes)``."""

@@ -17,15 +17,19 @@ Detections, object by object:
               object of the frame has ``has_twist`` (the column is all or nothing)
     stamp     header.stamp as ``sec * 1e9 + nanosec`` ns; frame_id is header.frame_id
 Tracks, one TrackedObject each:
-    object_id     ``uuid5(NAMESPACE_URL, "simpletrack:<vehicle>/<sensor>/<track id>")``: the
-                  same track keeps its UUID for as long as the service keeps its id
+    object_id     ``uuid5(NAMESPACE_URL, "simpletrack:" + global id)``, the global id being
+                  ``<vehicle>/<sensor>/<track id>`` (schemas/README.md, "Track identity"):
+                  one UUID per track of the fleet, for its whole life, never reused
     existence     the track score; classification: one entry, the track's class through the
                   label map (the first label mapped to it; UNKNOWN if none) with probability
                   1.0, since a track's class is fixed when it is born
     kinematics    pose from the box centre and yaw (orientation AVAILABLE); twist linear from
                   the track velocity rotated into the object's frame (z unchanged), angular 0;
-                  acceleration 0; is_stationary false. Every covariance is zero: the service
-                  does not publish its filter covariance, so zero here means "not given"
+                  acceleration 0; is_stationary false. Covariances, from a version-2 frame
+                  with the filter's: the pose's x, y, z block (in the header's frame) and the
+                  twist's linear block (turned into the object's frame, like the twist);
+                  orientation and angular rows stay 0, as does everything from a frame
+                  without covariance (version 1, or motion=cv): zero means "not given"
     shape         BOUNDING_BOX with the track's size, no footprint
 """
 
@@ -34,10 +38,11 @@ from __future__ import annotations
 import math
 import uuid
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
+import numpy.typing as npt
 
 from simpletrack.ros2.labels import LabelMap
 from simpletrack.ros2.messages import (
@@ -62,6 +67,7 @@ from simpletrack.ros2.messages import (
     Vector3,
 )
 from simpletrack.wire import BoxArrays, TrackArrays
+from simpletrack.wire.track_ids import global_id
 
 NS_PER_S = 1_000_000_000
 
@@ -190,7 +196,29 @@ def _empty(classes: tuple[str, ...]) -> BoxArrays:
 
 
 def object_uuid(vehicle: str, sensor: str, track_id: int) -> bytes:
-    return uuid.uuid5(uuid.NAMESPACE_URL, f"simpletrack:{vehicle}/{sensor}/{track_id}").bytes
+    return uuid.uuid5(
+        uuid.NAMESPACE_URL, "simpletrack:" + global_id(vehicle, sensor, track_id)
+    ).bytes
+
+
+def _ros_covariances(
+    tracks: TrackArrays,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None:
+    """Each track's pose and twist covariance (N, 36), ROS order (x, y, z, rx, ry, rz)."""
+    cov = tracks.covariance_matrices()
+    if cov is None:
+        return None
+    n = len(tracks)
+    yaw = tracks.yaw.astype(np.float64)
+    c, s = np.cos(-yaw), np.sin(-yaw)
+    rot = np.zeros((n, 3, 3))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
+    rot[:, 2, 2] = 1.0
+    pose = np.zeros((n, 6, 6))
+    pose[:, :3, :3] = cov[:, :3, :3]
+    twist = np.zeros((n, 6, 6))
+    twist[:, :3, :3] = rot @ cov[:, 3:, 3:] @ rot.transpose(0, 2, 1)
+    return pose.reshape(n, 36), twist.reshape(n, 36)
 
 
 def tracks_to_tracked_objects(
@@ -204,15 +232,21 @@ def tracks_to_tracked_objects(
 ) -> TrackedObjects:
     names = tracks.classes
     objects = []
+    covariances = _ros_covariances(tracks)
     for i in range(len(tracks)):
         cx, cy, cz = (float(v) for v in tracks.center[i])
         length, width, height = (float(v) for v in tracks.size[i])
         yaw = float(tracks.yaw[i])
         vx, vy, vz = (float(v) for v in tracks.velocity[i])
         tx, ty = rotate(vx, vy, -yaw)
+        pose = PoseWithCovariance(Pose(Point(cx, cy, cz), quaternion_of(yaw)))
+        twist = TwistWithCovariance(Twist(linear=Vector3(tx, ty, vz)))
+        if covariances is not None:
+            pose = replace(pose, covariance=tuple(covariances[0][i].tolist()))
+            twist = replace(twist, covariance=tuple(covariances[1][i].tolist()))
         kinematics = TrackedObjectKinematics(
-            pose_with_covariance=PoseWithCovariance(Pose(Point(cx, cy, cz), quaternion_of(yaw))),
-            twist_with_covariance=TwistWithCovariance(Twist(linear=Vector3(tx, ty, vz))),
+            pose_with_covariance=pose,
+            twist_with_covariance=twist,
             orientation_availability=OrientationAvailability.AVAILABLE,
         )
         label = labels.label_of(names[int(tracks.class_index[i])])

@@ -16,8 +16,7 @@ import numpy.typing as npt
 from simpletrack.wire.columns import (
     DETECTION_COLUMNS,
     DETECTION_SPECS,
-    TRACK_COLUMNS,
-    TRACK_SPECS,
+    TRACK_COLUMNS_OF,
     BoxArrays,
     ColumnSpec,
     TrackArrays,
@@ -29,13 +28,19 @@ from simpletrack.wire.messages import (
     DETECTION_FRAME,
     MESSAGE_TYPES,
     SPECS,
-    TRACK_FRAME,
+    TRACK_FRAMES,
     DetectionFrame,
     Message,
     TrackFrame,
+    spec_of,
     to_map,
 )
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.reasons import (
+    SCHEMA_VERSION,
+    TRACK_SCHEMA_VERSION,
+    TRACK_SCHEMA_VERSIONS,
+    ErrorReason,
+)
 
 M = TypeVar("M")
 T = TypeVar("T")
@@ -106,7 +111,7 @@ def encode(message: Message | _PydanticModel) -> bytes:
         return pack(message.model_dump(mode="python"))
     obj = to_map(message)
     try:
-        SPECS[type(message).__name__](obj)
+        spec_of(message)(obj)
     except Invalid as e:
         raise ValueError(f"{type(message).__name__}.{e.field}: {e.detail}") from None
     return pack(obj)
@@ -132,18 +137,20 @@ def _unpack(payload: bytes, limits: DecodeLimits) -> dict[str, Any]:
     return obj
 
 
-def _check_version(obj: dict[str, Any]) -> None:
+def _check_version(obj: dict[str, Any], accepted: tuple[int, ...] = (SCHEMA_VERSION,)) -> int:
     version = obj.get("schema_version")
     if "schema_version" not in obj:
         raise _Reject(ErrorReason.MISSING_FIELD, "schema_version", "field required")
     if type(version) is not int:
         raise _Reject(ErrorReason.WRONG_TYPE, "schema_version", "must be an integer")
-    if version != SCHEMA_VERSION:
+    if version not in accepted:
+        speaks = ", ".join(map(str, accepted))
         raise _Reject(
             ErrorReason.WRONG_VERSION,
             "schema_version",
-            f"version {version} not supported (this service speaks {SCHEMA_VERSION})",
+            f"version {version} not supported (this service speaks {speaks})",
         )
+    return version
 
 
 def _validate(spec: MapSpec[T], obj: dict[str, Any]) -> T:
@@ -173,7 +180,7 @@ def _plan(specs: tuple[ColumnSpec, ...], prefix: str) -> tuple[_Column, ...]:
 
 
 _DETECTION_PLAN = _plan(DETECTION_COLUMNS, "boxes")
-_TRACK_PLAN = _plan(TRACK_COLUMNS, "tracks")
+_TRACK_PLANS = {v: _plan(cols, "tracks") for v, cols in TRACK_COLUMNS_OF.items()}
 
 
 def _columns(
@@ -320,9 +327,9 @@ def decode_track_frame(
     obj: dict[str, Any] = {}
     try:
         obj = _unpack(payload, limits)
-        _check_version(obj)
-        frame = _validate(TRACK_FRAME, obj)
-        cols = _columns(frame.tracks, _TRACK_PLAN, "tracks", limits.max_boxes)
+        version = _check_version(obj, TRACK_SCHEMA_VERSIONS)
+        frame = _validate(TRACK_FRAMES[version], obj)
+        cols = _columns(frame.tracks, _TRACK_PLANS[version], "tracks", limits.max_boxes)
         return frame, TrackArrays(classes=tuple(frame.tracks.classes), **cols)
     except _Reject as r:
         return Rejection(
@@ -418,13 +425,28 @@ def encode_track_frame(
     received_ns: int,
     published_ns: int,
     tracks: TrackArrays,
+    schema_version: int | None = None,
 ) -> bytes:
+    """A ``TrackFrame`` of the given version (1 leaves out version 2's columns, for fleets
+    with readers of version 1); None: version 2 when ``tracks`` has its ages in seconds,
+    else 1 (what a caller of before version 2 gets). ValueError for a bad version, a column
+    of the wrong shape, or a version-2 frame without ages in seconds."""
+    if schema_version is None:
+        has_ages = tracks.age_s is not None and tracks.time_since_update_s is not None
+        schema_version = TRACK_SCHEMA_VERSION if has_ages else 1
+    if schema_version not in TRACK_COLUMNS_OF:
+        raise ValueError(f"TrackFrame schema_version {schema_version!r} is not one of 1, 2")
     columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
-    for name, spec in TRACK_SPECS.items():
-        columns[name] = to_column(getattr(tracks, name), spec)
+    for spec in TRACK_COLUMNS_OF[schema_version]:
+        values = getattr(tracks, spec.name)
+        if values is None:
+            if not spec.optional:
+                raise ValueError(f"a version {schema_version} TrackFrame needs {spec.name}")
+            continue
+        columns[spec.name] = to_column(values, spec)
     return pack(
         {
-            "schema_version": SCHEMA_VERSION,
+            "schema_version": schema_version,
             "vehicle": vehicle,
             "sensor": sensor,
             "seq": seq,

@@ -60,7 +60,7 @@ DETECTION_COLUMNS: tuple[ColumnSpec, ...] = (
     _f32("velocity", 2, optional=True),
 )
 
-TRACK_COLUMNS: tuple[ColumnSpec, ...] = (
+TRACK_COLUMNS_V1: tuple[ColumnSpec, ...] = (
     ColumnSpec("id", "<i8", 1),
     ColumnSpec("class_index", "<i4", 1),
     _f32("center", 3),
@@ -73,9 +73,37 @@ TRACK_COLUMNS: tuple[ColumnSpec, ...] = (
     ColumnSpec("age", "<i4", 1),
     ColumnSpec("time_since_update", "<i4", 1),
 )
+# TrackFrame version 2 adds these. The covariance is the upper triangle, row-major, of the
+# symmetric 6x6 over [x, y, z, vx, vy, vz] (COVARIANCE_UPPER): 21 values, not 36, since
+# the other 15 repeat them; absent when the motion model keeps none. Seconds are float64:
+# they are differences of stamps, and a planner compares them with its own clock.
+TRACK_COLUMNS_V2_ADDED: tuple[ColumnSpec, ...] = (
+    _f32("covariance", 21, optional=True),
+    ColumnSpec("age_s", "<f8", 1, finite=True),
+    ColumnSpec("time_since_update_s", "<f8", 1, finite=True),
+)
+TRACK_COLUMNS: tuple[ColumnSpec, ...] = TRACK_COLUMNS_V1 + TRACK_COLUMNS_V2_ADDED
+# The columns of each TrackFrame schema version.
+TRACK_COLUMNS_OF: dict[int, tuple[ColumnSpec, ...]] = {1: TRACK_COLUMNS_V1, 2: TRACK_COLUMNS}
+COVARIANCE_UPPER = np.triu_indices(6)  # (row, col) of each of the 21 values, in order
 
 DETECTION_SPECS = {c.name: c for c in DETECTION_COLUMNS}
 TRACK_SPECS = {c.name: c for c in TRACK_COLUMNS}
+
+
+def covariance_to_upper(cov: npt.ArrayLike) -> F32:
+    """(N, 6, 6) symmetric matrices as the (N, 21) float32 column."""
+    a = np.asarray(cov)
+    return np.ascontiguousarray(a[:, COVARIANCE_UPPER[0], COVARIANCE_UPPER[1]], dtype=np.float32)
+
+
+def covariance_from_upper(upper: npt.ArrayLike) -> F64:
+    """The (N, 21) column as (N, 6, 6) float64 symmetric matrices."""
+    u = np.asarray(upper, dtype=np.float64)
+    out = np.zeros((u.shape[0], 6, 6))
+    out[:, COVARIANCE_UPPER[0], COVARIANCE_UPPER[1]] = u
+    out[:, COVARIANCE_UPPER[1], COVARIANCE_UPPER[0]] = u
+    return out
 
 
 def to_column(values: npt.ArrayLike, spec: ColumnSpec) -> bytes:
@@ -116,7 +144,9 @@ class BoxArrays:
 
 @dataclass(frozen=True, slots=True)
 class TrackArrays:
-    """Decoded tracks. ``state`` holds ``WireTrackState`` codes."""
+    """Decoded tracks. ``state`` holds ``WireTrackState`` codes. The last three come with
+    TrackFrame version 2 (None from a version-1 frame; ``covariance`` also None when the
+    service's motion model keeps none)."""
 
     classes: tuple[str, ...]
     id: I64
@@ -130,6 +160,13 @@ class TrackArrays:
     hits: I32
     age: I32
     time_since_update: I32
+    covariance: F32 | None = None  # (N, 21) upper triangle of [x, y, z, vx, vy, vz]
+    age_s: F64 | None = None  # (N,) seconds from birth to this frame's stamp
+    time_since_update_s: F64 | None = None  # (N,) seconds from the last update
 
     def __len__(self) -> int:
         return int(self.id.shape[0])
+
+    def covariance_matrices(self) -> F64 | None:
+        """The covariance as (N, 6, 6) float64 matrices, or None when not sent."""
+        return None if self.covariance is None else covariance_from_upper(self.covariance)

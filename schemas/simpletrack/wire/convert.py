@@ -20,7 +20,15 @@ import numpy as np
 from simpletrack.core.boxes import CENTER, SIZE, YAW, Boxes
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
-from simpletrack.wire.columns import F32, F64, I32, BoxArrays, TrackArrays
+from simpletrack.wire.columns import (
+    F32,
+    F64,
+    I32,
+    BoxArrays,
+    TrackArrays,
+    covariance_from_upper,
+    covariance_to_upper,
+)
 from simpletrack.wire.reasons import WireTrackState
 
 if TYPE_CHECKING:
@@ -81,8 +89,10 @@ def wire_states(tracks: Tracks) -> I32:
 
 
 def tracks_to_wire(tracks: Tracks, id_base: int, classes: tuple[str, ...]) -> TrackArrays:
-    """A tracker's output as track columns; ids are offset by the sensor's ``id_base``."""
+    """A tracker's output as track columns; ids are offset by the sensor's ``id_base``.
+    The covariance travels as its upper triangle (``columns.COVARIANCE_UPPER``)."""
     p = tracks.boxes.params
+    cov = tracks.covariance
     return TrackArrays(
         classes=classes,
         id=tracks.ids + np.int64(id_base),
@@ -96,7 +106,14 @@ def tracks_to_wire(tracks: Tracks, id_base: int, classes: tuple[str, ...]) -> Tr
         hits=tracks.hits.astype(np.int32),
         age=tracks.age.astype(np.int32),
         time_since_update=tracks.time_since_update.astype(np.int32),
+        covariance=None if cov is None else covariance_to_upper(cov),
+        age_s=_f64(tracks.age_s),
+        time_since_update_s=_f64(tracks.time_since_update_s),
     )
+
+
+def _f64(values: F64 | None) -> F64 | None:
+    return None if values is None else values.astype(np.float64)
 
 
 # --- wire -> core -------------------------------------------------------------------------
@@ -155,4 +172,7 @@ def tracks_from_wire(tracks: TrackArrays) -> Tracks:
         hits=tracks.hits.astype(np.int32),
         age=tracks.age.astype(np.int32),
         time_since_update=tracks.time_since_update.astype(np.int32),
+        covariance=None if tracks.covariance is None else covariance_from_upper(tracks.covariance),
+        age_s=_f64(tracks.age_s),
+        time_since_update_s=_f64(tracks.time_since_update_s),
     )

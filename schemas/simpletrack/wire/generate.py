@@ -12,6 +12,7 @@ import json
 import re
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +29,17 @@ from simpletrack.wire.codec import (
     encode_track_frame,
     pack,
 )
-from simpletrack.wire.columns import DETECTION_COLUMNS, TRACK_COLUMNS, BoxArrays, TrackArrays
+from simpletrack.wire.columns import (
+    DETECTION_COLUMNS,
+    TRACK_COLUMNS_OF,
+    BoxArrays,
+    TrackArrays,
+    covariance_to_upper,
+)
 from simpletrack.wire.messages import FrameError as DecodedFrameError
 from simpletrack.wire.messages import to_map
-from simpletrack.wire.models import MESSAGES, FrameError
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.models import MESSAGES, FrameError, TrackFrame
+from simpletrack.wire.reasons import SCHEMA_VERSION, TRACK_SCHEMA_VERSION, ErrorReason
 
 ROOT = Path(__file__).resolve().parents[2]  # schemas/
 JSON_DIR = ROOT / "json"
@@ -43,7 +50,8 @@ def json_schemas() -> dict[str, str]:
     out = {}
     for model in MESSAGES:
         schema = model.model_json_schema()
-        schema["$id"] = f"simpletrack/v{SCHEMA_VERSION}/{model.__name__}"
+        version = TRACK_SCHEMA_VERSION if model is TrackFrame else SCHEMA_VERSION
+        schema["$id"] = f"simpletrack/v{version}/{model.__name__}"
         out[f"{model.__name__}.schema.json"] = json.dumps(schema, indent=2, sort_keys=True) + "\n"
     return out
 
@@ -93,9 +101,9 @@ def _raw(mutate: Callable[[dict[str, Any]], None]) -> bytes:
     return pack(obj)
 
 
-def _tracks() -> bytes:
+def _track_arrays() -> TrackArrays:
     n = 2
-    tracks = TrackArrays(
+    return TrackArrays(
         classes=("Car", "Pedestrian", "Cyclist"),
         id=np.array([7, 12], dtype=np.int64),
         class_index=np.array([0, 1], dtype=np.int32),
@@ -109,6 +117,23 @@ def _tracks() -> bytes:
         age=np.array([14, 1], dtype=np.int32),
         time_since_update=np.zeros(n, dtype=np.int32),
     )
+
+
+def _tracks(schema_version: int = 1, covariance: bool = True) -> bytes:
+    tracks = _track_arrays()
+    if schema_version >= 2:
+        # Powers of two (exact in float32): a confident car, a young pedestrian; the
+        # velocity block is wider than the position block, as the filter's is.
+        cov = np.zeros((2, 6, 6))
+        cov[0] = np.diag([0.25, 0.25, 0.125, 1.0, 1.0, 0.5])
+        cov[0, 0, 3] = cov[0, 3, 0] = 0.125
+        cov[1] = np.diag([1.0, 1.0, 1.0, 8.0, 8.0, 8.0])
+        tracks = replace(
+            tracks,
+            covariance=covariance_to_upper(cov) if covariance else None,
+            age_s=np.array([1.5, 0.0]),
+            time_since_update_s=np.array([0.0, 0.0]),
+        )
     return encode_track_frame(
         **_HEADER,
         frame_id="lidar_top",
@@ -118,7 +143,16 @@ def _tracks() -> bytes:
         received_ns=1_700_000_000_130_000_000,
         published_ns=1_700_000_000_135_000_000,
         tracks=tracks,
+        schema_version=schema_version,
     )
+
+
+def _raw_tracks(schema_version: int, mutate: Callable[[dict[str, Any]], None]) -> bytes:
+    import msgpack
+
+    obj: dict[str, Any] = msgpack.unpackb(_tracks(schema_version), raw=False)
+    mutate(obj)
+    return pack(obj)
 
 
 def _error() -> bytes:
@@ -166,6 +200,21 @@ VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
     ),
     "detection_empty": ("DetectionFrame", lambda: _detections(boxes=_boxes(0))),
     "tracks_basic": ("TrackFrame", _tracks),
+    "tracks_v2": ("TrackFrame", lambda: _tracks(2)),
+    "tracks_v2_no_covariance": ("TrackFrame", lambda: _tracks(2, covariance=False)),
+    # Version 2's columns in a frame that says version 1: refused as a version-1 reader would.
+    "invalid_tracks_v1_extra_column": (
+        "TrackFrame",
+        lambda: _raw_tracks(2, _set("schema_version", 1)),
+    ),
+    "invalid_tracks_v2_missing_age": (
+        "TrackFrame",
+        lambda: _raw_tracks(2, _set("tracks.age_s", _DELETE)),
+    ),
+    "invalid_tracks_wrong_version": (
+        "TrackFrame",
+        lambda: _raw_tracks(2, _set("schema_version", 3)),
+    ),
     "error_unknown_class": ("FrameError", _error),
     "invalid_wrong_version": ("DetectionFrame", lambda: _raw(_set("schema_version", 2))),
     "invalid_missing_field": ("DetectionFrame", lambda: _raw(_set("stamp_ns", _DELETE))),
@@ -218,7 +267,10 @@ def decoded_json(kind: str, payload: bytes) -> dict[str, Any]:
         msg["tracks"] = {
             "count": len(arrays),
             "classes": list(arrays.classes),
-            **{c.name: _array_json(getattr(arrays, c.name)) for c in TRACK_COLUMNS},
+            **{
+                c.name: _array_json(getattr(arrays, c.name))
+                for c in TRACK_COLUMNS_OF[frame.schema_version]
+            },
         }
         return {"message": kind, "valid": True, "decoded": msg}
     e = decode_message(payload, DecodedFrameError)
@@ -239,7 +291,7 @@ def _dumps(obj: Any) -> str:
 
 
 # The README's byte-exact examples: one message of each kind, as annotated hex.
-EXAMPLES = ("detection_basic", "tracks_basic", "error_unknown_class")
+EXAMPLES = ("detection_basic", "tracks_basic", "tracks_v2", "error_unknown_class")
 README = ROOT / "README.md"
 _EXAMPLES_BEGIN = "<!-- generated:examples (python -m simpletrack.wire.generate) -->"
 _EXAMPLES_END = "<!-- end generated:examples -->"

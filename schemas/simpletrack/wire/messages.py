@@ -30,7 +30,7 @@ from simpletrack.wire.fields import (
     string,
     strings_between,
 )
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.reasons import SCHEMA_VERSION, TRACK_SCHEMA_VERSION, ErrorReason
 
 # One Zenoh key chunk, also safe as a file name: no '/', wildcards, '@' or leading dot.
 NAME_PATTERN = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}$"
@@ -74,6 +74,10 @@ class TrackColumns:
     hits: bytes
     age: bytes
     time_since_update: bytes
+    # Version 2 (absent, not nil, from a version-1 frame: its bytes stay what they were).
+    covariance: bytes | None = dataclass_field(default=None, metadata=OMIT_NONE)
+    age_s: bytes | None = dataclass_field(default=None, metadata=OMIT_NONE)
+    time_since_update_s: bytes | None = dataclass_field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -196,9 +200,9 @@ def _columns(names: tuple[str, ...], optional: tuple[str, ...] = ()) -> list[Fie
     return [Field(n, nullable(binary), None) if n in optional else Field(n, binary) for n in names]
 
 
-def _header() -> list[Field]:
+def _header(version: int = SCHEMA_VERSION) -> list[Field]:
     return [
-        Field("schema_version", literal(SCHEMA_VERSION)),
+        Field("schema_version", literal(version)),
         Field("vehicle", _name),
         Field("sensor", _name),
         Field("seq", _int64),
@@ -217,6 +221,24 @@ BOX_COLUMNS = MapSpec(
         ),
     ],
 )
+_TRACK_COLUMNS_V1 = (
+    "id",
+    "class_index",
+    "center",
+    "size",
+    "yaw",
+    "score",
+    "velocity",
+    "state",
+    "hits",
+    "age",
+    "time_since_update",
+)
+TRACK_COLUMNS_V1 = MapSpec(
+    "TrackColumnsV1",
+    TrackColumns,
+    [Field("count", _count), Field("classes", _classes), *_columns(_TRACK_COLUMNS_V1)],
+)
 TRACK_COLUMNS = MapSpec(
     "TrackColumns",
     TrackColumns,
@@ -224,19 +246,8 @@ TRACK_COLUMNS = MapSpec(
         Field("count", _count),
         Field("classes", _classes),
         *_columns(
-            (
-                "id",
-                "class_index",
-                "center",
-                "size",
-                "yaw",
-                "score",
-                "velocity",
-                "state",
-                "hits",
-                "age",
-                "time_since_update",
-            )
+            (*_TRACK_COLUMNS_V1, "covariance", "age_s", "time_since_update_s"),
+            optional=("covariance",),
         ),
     ],
 )
@@ -252,20 +263,31 @@ DETECTION_FRAME = MapSpec(
         Field("boxes", BOX_COLUMNS),
     ],
 )
-TRACK_FRAME = MapSpec(
-    "TrackFrame",
-    TrackFrame,
-    [
-        *_header(),
-        Field("frame_id", string(min_length=1, max_length=128)),
-        Field("pose", _pose, None),
-        Field("key_frame", boolean, True),
-        Field("instance", _name),
-        Field("received_ns", _int64),
-        Field("published_ns", _int64),
-        Field("tracks", TRACK_COLUMNS),
-    ],
-)
+
+
+def _track_frame(name: str, version: int, columns: MapSpec[TrackColumns]) -> MapSpec[TrackFrame]:
+    return MapSpec(
+        name,
+        TrackFrame,
+        [
+            *_header(version),
+            Field("frame_id", string(min_length=1, max_length=128)),
+            Field("pose", _pose, None),
+            Field("key_frame", boolean, True),
+            Field("instance", _name),
+            Field("received_ns", _int64),
+            Field("published_ns", _int64),
+            Field("tracks", columns),
+        ],
+    )
+
+
+# Named as the pydantic models are (models.TrackFrameV1), whose messages these repeat.
+TRACK_FRAME_V1 = _track_frame("TrackFrameV1", 1, TRACK_COLUMNS_V1)
+TRACK_FRAME = _track_frame("TrackFrame", TRACK_SCHEMA_VERSION, TRACK_COLUMNS)
+# Each TrackFrame version a decoder reads, with its fields (a version-1 frame holding a
+# version-2 column is an extra_field, as it is to a version-1 reader).
+TRACK_FRAMES: dict[int, MapSpec[TrackFrame]] = {1: TRACK_FRAME_V1, 2: TRACK_FRAME}
 FRAME_ERROR = MapSpec(
     "FrameError",
     FrameError,
@@ -372,6 +394,16 @@ SPECS: dict[str, MapSpec[Any]] = {
         SENSOR_SNAPSHOT,
     )
 }
+# The previous TrackFrame version, by the name of its pydantic model (models.TrackFrameV1).
+SPECS[TRACK_FRAME_V1.name] = TRACK_FRAME_V1
+SPECS[TRACK_COLUMNS_V1.name] = TRACK_COLUMNS_V1
+
+
+def spec_of(message: Message) -> MapSpec[Any]:
+    """The field table a message is validated with (a TrackFrame's by its version)."""
+    if isinstance(message, TrackFrame):
+        return TRACK_FRAMES.get(message.schema_version, TRACK_FRAME)
+    return SPECS[type(message).__name__]
 
 
 def to_map(message: Message) -> dict[str, Any]:

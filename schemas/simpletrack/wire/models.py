@@ -100,8 +100,8 @@ class BoxColumns(WireModel):
         )
 
 
-class TrackColumns(WireModel):
-    """N tracks as columns; same box convention as ``BoxColumns``."""
+class TrackColumnsV1(WireModel):
+    """N tracks as columns (TrackFrame version 1); same box convention as ``BoxColumns``."""
 
     count: Annotated[int, Field(ge=0, le=2**31 - 1)] = Field(description="N, rows per column")
     classes: Annotated[list[ClassName], Field(max_length=1024)] = Field(
@@ -120,6 +120,28 @@ class TrackColumns(WireModel):
     time_since_update: bytes = _column(
         TRACK_SPECS["time_since_update"], "int32 frames since the last update"
     )
+
+
+class TrackColumns(TrackColumnsV1):
+    """N tracks as columns (TrackFrame version 2): version 1's and three more."""
+
+    covariance: bytes | None = _column(
+        TRACK_SPECS["covariance"],
+        "float32 upper triangle, row-major, of the 6x6 covariance over x, y, z, vx, vy, vz "
+        "(m^2, m^2/s, m^2/s^2); absent when the motion model keeps none",
+    )
+    age_s: bytes = _column(TRACK_SPECS["age_s"], "float64 seconds from birth to stamp_ns")
+    time_since_update_s: bytes = _column(
+        TRACK_SPECS["time_since_update_s"], "float64 seconds from the last update to stamp_ns"
+    )
+
+    @model_serializer(mode="wrap")
+    def _omit_absent_covariance(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # Absent rather than nil, as the service sends it (simpletrack.wire.messages.OMIT_NONE).
+        out: dict[str, Any] = handler(self)
+        if out.get("covariance", 0) is None:
+            del out["covariance"]
+        return out
 
 
 class _Header(WireModel):
@@ -148,8 +170,9 @@ class DetectionFrame(_Header):
         return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
 
 
-class TrackFrame(_Header):
-    """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``.
+class TrackFrameV1(_Header):
+    """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``
+    (version 1, what a service with ``tracks_schema_version`` 1 sends).
 
     ``seq`` and ``stamp_ns`` echo the detection frame's."""
 
@@ -161,6 +184,18 @@ class TrackFrame(_Header):
     instance: Name = Field(description="id of the service instance that tracked the frame")
     received_ns: Int64 = Field(description="service wall clock (unix ns) at receipt")
     published_ns: Int64 = Field(description="service wall clock (unix ns) at publication")
+    tracks: TrackColumnsV1
+
+
+class TrackFrame(TrackFrameV1):
+    """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``
+    (version 2: covariance and ages in seconds).
+
+    ``seq`` and ``stamp_ns`` echo the detection frame's."""
+
+    schema_version: Literal[2] = Field(  # type: ignore[assignment]  # v1 is a separate model
+        description="2 for this layout (1: TrackFrameV1)"
+    )
     tracks: TrackColumns
 
 
@@ -261,6 +296,7 @@ class SensorSnapshot(WireModel):
 MESSAGES: tuple[type[WireModel], ...] = (
     DetectionFrame,
     TrackFrame,
+    TrackFrameV1,
     FrameError,
     ServiceStatus,
     SensorSnapshot,

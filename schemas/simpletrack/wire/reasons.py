@@ -6,6 +6,10 @@ from enum import IntEnum, StrEnum
 from typing import Final
 
 SCHEMA_VERSION: Final = 1
+# TrackFrame alone is at version 2 (covariance, ages in seconds); decoders read 1 and 2,
+# and the service sends either (its setting tracks_schema_version; schemas/README.md).
+TRACK_SCHEMA_VERSION: Final = 2
+TRACK_SCHEMA_VERSIONS: Final = (1, 2)
 
 
 class ErrorReason(StrEnum):

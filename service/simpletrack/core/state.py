@@ -28,6 +28,8 @@ class TrackTable:
     out_box: npt.NDArray[np.float64]  # (T, 7) box reported for the latest frame
     # The score taken on the last stage-1 match (undecayed): what coast_output writes.
     match_score: npt.NDArray[np.float64]
+    # Stamp of the frame the track was born on: its age in seconds (Tracks.age_s).
+    t_birth: npt.NDArray[np.float64]
 
     @classmethod
     def empty(cls) -> TrackTable:
@@ -45,6 +47,7 @@ class TrackTable:
             update=np.zeros(0, dtype=np.int8),
             out_box=np.zeros((0, 7)),
             match_score=np.zeros(0),
+            t_birth=np.zeros(0),
         )
 
     def __len__(self) -> int:
@@ -74,7 +77,9 @@ class TrackTable:
 _FIELDS = tuple(f.name for f in fields(TrackTable))
 # Columns added after states were first written, each with the column an older state fills
 # it from: the same format number then still reads every snapshot a deployment holds.
-_ADDED = {"match_score": "score"}
+# A state without birth stamps counts a track's age in seconds from its last update: a lower
+# bound, and exact again for every track born after the restore.
+_ADDED = {"match_score": "score", "t_birth": "t_update"}
 
 
 def _pack_array(a: npt.NDArray[Any]) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from simpletrack.core.config import (
     TrackerConfig,
     TrackScore,
 )
-from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.frames import POS_VEL, Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
 from simpletrack.core.nms import drop_degenerate, nms
@@ -160,6 +160,9 @@ class Tracker:
 
         out_box = pred_box.copy()
         out_box[corrected] = x[corrected, :7]
+        # The covariance of the box reported: corrected where the box is, else predicted.
+        out_p = p_pred.copy()
+        out_p[corrected] = p[corrected]
         tr = TrackTable(
             ids=tr.ids,
             cls=tr.cls,
@@ -174,13 +177,17 @@ class Tracker:
             update=update,
             out_box=out_box,
             match_score=match_score,
+            t_birth=tr.t_birth,
         )
         if key:
-            tr = tr.concat(self._births(dets.take(unmatched_det), frame.stamp))
-            tr = tr.take(tr.state != TrackState.DEAD)
+            born = self._births(dets.take(unmatched_det), frame.stamp)
+            tr = tr.concat(born)
+            out_p = np.concatenate([out_p, born.p])
+            alive = tr.state != TrackState.DEAD
+            tr, out_p = tr.take(alive), out_p[alive]
         self.tracks = tr
         self.last_stamp = frame.stamp
-        return self._output(tr)
+        return self._output(tr, out_p, frame.stamp)
 
     # ------------------------------------------------------------------ stages
     def _preprocess(self, frame: Frame) -> Boxes:
@@ -523,9 +530,11 @@ class Tracker:
             update=np.full(n, UpdateKind.MATCHED, dtype=np.int8),
             out_box=dets.params.copy(),
             match_score=dets.score.copy(),
+            t_birth=np.full(n, stamp),
         )
 
-    def _output(self, tr: TrackTable) -> Tracks:
+    def _output(self, tr: TrackTable, out_p: F64, stamp: float) -> Tracks:
+        """The reported tracks; ``out_p`` holds each track's covariance of its reported box."""
         policy = self.config.output
         matched = tr.update == UpdateKind.MATCHED
         confirmed = tr.state == TrackState.CONFIRMED
@@ -542,6 +551,9 @@ class Tracker:
         keep |= coast
         score = np.where(coast, tr.match_score, tr.score)[keep]
         t = tr.take(keep)
+        covariance = None
+        if self.config.motion is MotionModel.KALMAN:
+            covariance = out_p[keep][:, POS_VEL][:, :, POS_VEL]
         return Tracks(
             ids=t.ids,
             boxes=Boxes(params=t.out_box, score=score, cls=t.cls),
@@ -551,6 +563,9 @@ class Tracker:
             hits=t.hits,
             age=t.age,
             time_since_update=t.time_since_update,
+            covariance=covariance,
+            age_s=stamp - t.t_birth,
+            time_since_update_s=stamp - t.t_update,
         )
 
     # ------------------------------------------------------------------ persistence

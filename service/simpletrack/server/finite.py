@@ -22,7 +22,10 @@ FLOAT_COLUMNS = tuple(c.name for c in TRACK_COLUMNS if c.finite)
 def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
     """The first float column (table order) holding NaN or inf, and the row; None if none."""
     for name in FLOAT_COLUMNS:
-        bad = ~np.isfinite(getattr(tracks, name))
+        values = getattr(tracks, name)
+        if values is None:  # an optional column not sent (e.g. no covariance)
+            continue
+        bad = ~np.isfinite(values)
         if bad.any():
             return name, int(np.argwhere(bad)[0][0])
     return None

@@ -58,6 +58,7 @@ from simpletrack.session import (
     check_roles,
 )
 from simpletrack.wire.models import NAME_PATTERN
+from simpletrack.wire.reasons import TRACK_SCHEMA_VERSION
 
 ENV_PREFIX = "SIMPLETRACK_"
 DOC_COMMAND = "python -m simpletrack.server.settings --write <this file>"
@@ -279,6 +280,11 @@ class ServiceSettings(BaseSettings):
     )
     world_frame_id: Annotated[str, Field(min_length=1)] = Field(
         default="world", description="frame_id of tracks when detections carry a pose"
+    )
+    tracks_schema_version: Annotated[int, Field(ge=1, le=TRACK_SCHEMA_VERSION)] = Field(
+        default=TRACK_SCHEMA_VERSION,
+        description="TrackFrame version published: 1 until every reader decodes 2 "
+        "(schemas/README.md, Versioning)",
     )
     log_format: LogFormat = Field(
         default=LogFormat.JSON, description="json or kv (key=value) lines"

@@ -404,6 +404,7 @@ class Worker(threading.Thread):
             received_ns=item.received_ns,
             published_ns=time.time_ns(),
             tracks=wire,
+            schema_version=ctx.settings.tracks_schema_version,
         )
         if not self._quiet:
             self.outbox.tracks(vehicle, sensor, payload)

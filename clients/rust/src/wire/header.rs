@@ -52,6 +52,11 @@ pub(crate) fn unpack_map(payload: &[u8], max_bytes: usize) -> Checked<ValueRef<'
 
 /// Step 3: `schema_version` present, an int, and 1.
 pub(crate) fn check_version(map: &Map<'_>) -> Checked<()> {
+    check_version_in(map, SCHEMA_VERSION, SCHEMA_VERSION).map(|_| ())
+}
+
+/// Step 3 for a message read in several versions: the version, one of `lo ..= hi`.
+pub(crate) fn check_version_in(map: &Map<'_>, lo: u64, hi: u64) -> Checked<u64> {
     let v = map.get("schema_version").ok_or_else(|| {
         Invalid::at(
             ErrorReason::MissingField,
@@ -66,14 +71,18 @@ pub(crate) fn check_version(map: &Map<'_>) -> Checked<()> {
             "must be an integer",
         )
     })?;
-    if n != i128::from(SCHEMA_VERSION) {
+    if n < i128::from(lo) || n > i128::from(hi) {
+        let speaks: Vec<String> = (lo..=hi).map(|v| v.to_string()).collect();
         return Err(Invalid::at(
             ErrorReason::WrongVersion,
             "schema_version",
-            format!("version {n} not supported (this client speaks {SCHEMA_VERSION})"),
+            format!(
+                "version {n} not supported (this client speaks {})",
+                speaks.join(", ")
+            ),
         ));
     }
-    Ok(())
+    Ok(n as u64)
 }
 
 /// `seq` and `stamp_ns` of a readable map, each when it is an int in 0 … 2^63−1.

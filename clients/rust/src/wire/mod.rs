@@ -27,10 +27,10 @@ pub use header::{
     DecodeLimits, MAX_COORDINATE_M, MAX_SIZE_M, MAX_SPEED_MPS, MAX_YAW_RAD, POSE_TOLERANCE,
 };
 pub use keys::{Keys, DEFAULT_PREFIX};
-pub use reasons::{ErrorReason, TrackState, SCHEMA_VERSION};
+pub use reasons::{ErrorReason, TrackState, SCHEMA_VERSION, TRACK_SCHEMA_VERSION};
 pub use rejection::Rejection;
 pub use status::{decode_service_status, SensorStatus, ServiceStatus};
-pub use tracks::{decode_track_frame, encode_track_frame, TrackColumns, TrackFrame};
+pub use tracks::{covariance_at, decode_track_frame, encode_track_frame, TrackColumns, TrackFrame};
 
 /// The Zenoh encoding of every message (Zenoh has no named constant for it).
 pub const ENCODING: &str = "application/msgpack";

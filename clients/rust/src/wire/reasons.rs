@@ -4,6 +4,8 @@ use std::fmt;
 
 /// The schema version this crate reads and writes (`schema_version`).
 pub const SCHEMA_VERSION: u64 = 1;
+/// `TrackFrame` alone is at version 2 (covariance, ages in seconds); the decoder reads 1 and 2.
+pub const TRACK_SCHEMA_VERSION: u64 = 2;
 
 /// Why a frame was not tracked (a `FrameError`'s `reason`), or why a decoder refused a payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

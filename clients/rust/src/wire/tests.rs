@@ -467,3 +467,92 @@ fn keys_name_a_sensor_and_back() {
     assert_eq!(k.sensor_of("fleet/veh/tracks"), None);
     assert_eq!(k.sensor_of("other/veh/lidar/tracks"), None);
 }
+
+fn track_frame(version: u64) -> TrackFrame {
+    let n = 2;
+    let mut upper = [0.0f32; 21];
+    upper
+        .iter_mut()
+        .enumerate()
+        .for_each(|(i, v)| *v = i as f32);
+    TrackFrame {
+        vehicle: "veh-1".into(),
+        sensor: "lidar".into(),
+        seq: 3,
+        stamp_ns: 9,
+        frame_id: "world".into(),
+        pose: None,
+        key_frame: true,
+        instance: "svc".into(),
+        received_ns: 10,
+        published_ns: 11,
+        tracks: TrackColumns {
+            classes: vec!["Car".into()],
+            id: vec![7, 1 << 40],
+            class_index: vec![0; n],
+            center: vec![[1.0, 2.0, 0.5]; n],
+            size: vec![[4.0, 2.0, 1.5]; n],
+            yaw: vec![0.0; n],
+            score: vec![0.5; n],
+            velocity: vec![[0.0; 3]; n],
+            state: vec![1; n],
+            hits: vec![3; n],
+            age: vec![4; n],
+            time_since_update: vec![0; n],
+            covariance: (version == 2).then(|| vec![upper; n]),
+            age_s: (version == 2).then(|| vec![0.4, 12.5]),
+            time_since_update_s: (version == 2).then(|| vec![0.0, 0.1]),
+        },
+        schema_version: version,
+    }
+}
+
+#[test]
+fn track_frames_of_both_versions_round_trip_and_version_1_has_no_new_columns() {
+    for version in [1, 2] {
+        let t = track_frame(version);
+        let bytes = encode_track_frame(&t).unwrap();
+        let back = decode_track_frame(&bytes, &DecodeLimits::default()).unwrap();
+        assert_eq!(back, t);
+        assert_eq!(back.tracks.age_s.is_some(), version == 2);
+    }
+    // A version-1 frame with version 2's columns is refused, as a version-1 reader would.
+    let v2 = encode_track_frame(&track_frame(2)).unwrap();
+    let mut value = rmpv::decode::read_value(&mut &v2[..]).unwrap();
+    if let Value::Map(m) = &mut value {
+        m[0].1 = Value::from(1);
+    }
+    let mut relabelled = Vec::new();
+    rmpv::encode::write_value(&mut relabelled, &value).unwrap();
+    let r = decode_track_frame(&relabelled, &DecodeLimits::default()).unwrap_err();
+    assert_eq!(r.reason, ErrorReason::ExtraField);
+    assert_eq!(r.field.as_deref(), Some("tracks.covariance"));
+}
+
+#[test]
+fn a_version_2_frame_without_ages_is_not_encoded_and_version_3_is_refused() {
+    let mut t = track_frame(2);
+    t.tracks.age_s = None;
+    assert_eq!(
+        encode_track_frame(&t).unwrap_err().field.as_deref(),
+        Some("tracks.age_s")
+    );
+    t.schema_version = 3;
+    assert_eq!(
+        encode_track_frame(&t).unwrap_err().reason,
+        ErrorReason::WrongVersion
+    );
+}
+
+#[test]
+fn covariance_elements_and_global_ids() {
+    let t = track_frame(2);
+    let upper = &t.tracks.covariance.as_ref().unwrap()[0];
+    assert_eq!(covariance_at(upper, 0, 0), 0.0);
+    assert_eq!(covariance_at(upper, 0, 5), 5.0);
+    assert_eq!(covariance_at(upper, 1, 1), 6.0);
+    assert_eq!(covariance_at(upper, 4, 1), 9.0); // (1, 4): symmetric
+    assert_eq!(covariance_at(upper, 5, 5), 20.0);
+    assert_eq!(t.global_id(1).as_deref(), Some("veh-1/lidar/1099511627776"));
+    assert_eq!(t.global_id(2), None);
+}

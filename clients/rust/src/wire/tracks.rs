@@ -2,14 +2,14 @@
 
 use super::columns::{check_count, check_finite, from_bytes, to_bytes};
 use super::fields::{
-    binary, boolean, int64, integer, name, string, Fields, INT32_MAX, MAX_FRAME_ID, V,
+    binary, boolean, int64, integer, name, nullable, string, Fields, INT32_MAX, MAX_FRAME_ID, V,
 };
 use super::header::{
-    check_classes, check_int64_field, check_name_field, check_version, classes, peek, pose_field,
-    unpack_map, version_field, DecodeLimits,
+    check_classes, check_int64_field, check_name_field, check_version_in, classes, peek,
+    pose_field, unpack_map, version_field, DecodeLimits,
 };
 use super::pack::Packer;
-use super::reasons::{ErrorReason, TrackState, SCHEMA_VERSION};
+use super::reasons::{ErrorReason, TrackState, TRACK_SCHEMA_VERSION};
 use super::rejection::{Checked, Invalid, Rejection};
 use super::value::Map;
 
@@ -34,6 +34,21 @@ pub struct TrackColumns {
     /// Frames since birth (0 at birth).
     pub age: Vec<i32>,
     pub time_since_update: Vec<i32>,
+    /// Version 2: the filter's covariance over x, y, z, vx, vy, vz as its upper triangle,
+    /// row-major ((0,0) (0,1) … (0,5) (1,1) … (5,5)); None from version 1 or when the
+    /// service's motion model keeps none. An estimate for ranking and gating, not metres
+    /// of error (schemas/README.md).
+    pub covariance: Option<Vec<[f32; 21]>>,
+    /// Version 2: seconds from birth to the frame's `stamp_ns`.
+    pub age_s: Option<Vec<f64>>,
+    /// Version 2: seconds from the last update to the frame's `stamp_ns`.
+    pub time_since_update_s: Option<Vec<f64>>,
+}
+
+/// Element (r, c), each 0 … 5, of a covariance kept as its upper triangle.
+pub fn covariance_at(upper: &[f32; 21], r: usize, c: usize) -> f32 {
+    let (r, c) = if r <= c { (r, c) } else { (c, r) };
+    upper[r * 6 - r * r.saturating_sub(1) / 2 + (c - r)]
 }
 
 impl TrackColumns {
@@ -71,12 +86,26 @@ pub struct TrackFrame {
     /// Service wall clock (Unix ns) when the tracks were published.
     pub published_ns: u64,
     pub tracks: TrackColumns,
+    /// 1 or 2: what the frame was decoded from, and what `encode_track_frame` writes.
+    pub schema_version: u64,
+}
+
+impl TrackFrame {
+    /// Track `i`'s fleet-unique id `<vehicle>/<sensor>/<id>` (schemas/README.md, "Track
+    /// identity"); None when `i` is out of range.
+    pub fn global_id(&self, i: usize) -> Option<String> {
+        let id = self.tracks.id.get(i)?;
+        Some(format!("{}/{}/{id}", self.vehicle, self.sensor))
+    }
 }
 
 struct RawTracks<'v> {
     count: usize,
     classes: Vec<String>,
     columns: [&'v [u8]; 11],
+    // Version 2's: covariance (optional), age_s, time_since_update_s.
+    covariance: Option<&'v [u8]>,
+    ages: Option<(&'v [u8], &'v [u8])>,
 }
 
 const COLUMNS: [&str; 11] = [
@@ -93,7 +122,7 @@ const COLUMNS: [&str; 11] = [
     "time_since_update",
 ];
 
-fn raw_tracks<'v>(v: &'v V<'v>) -> Checked<RawTracks<'v>> {
+fn raw_tracks<'v>(v: &'v V<'v>, version: u64) -> Checked<RawTracks<'v>> {
     let mut f = Fields::new(v, "TrackColumns")?;
     let count = f.required("count", |v| integer(v, 0, i128::from(INT32_MAX)))? as usize;
     let classes = f.required("classes", classes)?;
@@ -101,16 +130,24 @@ fn raw_tracks<'v>(v: &'v V<'v>) -> Checked<RawTracks<'v>> {
     for (slot, name) in columns.iter_mut().zip(COLUMNS) {
         *slot = f.required(name, binary)?;
     }
+    let (mut covariance, mut ages) = (None, None);
+    if version >= 2 {
+        covariance = f.optional("covariance", None, |v| nullable(v, binary))?;
+        let age_s = f.required("age_s", binary)?;
+        ages = Some((age_s, f.required("time_since_update_s", binary)?));
+    }
     f.finish()?;
     Ok(RawTracks {
         count,
         classes,
         columns,
+        covariance,
+        ages,
     })
 }
 
 fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checked<TrackFrame> {
-    check_version(map)?;
+    let schema_version = check_version_in(map, 1, TRACK_SCHEMA_VERSION)?;
     let mut f = Fields::new(value, "TrackFrame")?;
     version_field(&mut f)?;
     let vehicle = f.required("vehicle", name)?.to_owned();
@@ -125,7 +162,7 @@ fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checke
     let instance = f.required("instance", name)?.to_owned();
     let received_ns = f.required("received_ns", int64)?;
     let published_ns = f.required("published_ns", int64)?;
-    let raw = f.required("tracks", raw_tracks)?;
+    let raw = f.required("tracks", |v| raw_tracks(v, schema_version))?;
     f.finish()?;
 
     let n = raw.count;
@@ -149,6 +186,18 @@ fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checke
         hits: from_bytes(hits, n, "tracks.hits")?,
         age: from_bytes(age, n, "tracks.age")?,
         time_since_update: from_bytes(tsu, n, "tracks.time_since_update")?,
+        covariance: match raw.covariance {
+            Some(c) => Some(from_bytes(c, n, "tracks.covariance")?),
+            None => None,
+        },
+        age_s: match raw.ages {
+            Some((a, _)) => Some(from_bytes(a, n, "tracks.age_s")?),
+            None => None,
+        },
+        time_since_update_s: match raw.ages {
+            Some((_, t)) => Some(from_bytes(t, n, "tracks.time_since_update_s")?),
+            None => None,
+        },
         classes: raw.classes,
     };
     Ok(TrackFrame {
@@ -163,6 +212,7 @@ fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checke
         received_ns,
         published_ns,
         tracks,
+        schema_version,
     })
 }
 
@@ -203,6 +253,33 @@ fn check_frame(t: &TrackFrame) -> Checked<()> {
     check_finite(&c.yaw, "tracks.yaw")?;
     check_finite(&c.score, "tracks.score")?;
     check_finite(&c.velocity, "tracks.velocity")?;
+    match t.schema_version {
+        1 => {}
+        2 => {
+            let (Some(age_s), Some(tsu_s)) = (&c.age_s, &c.time_since_update_s) else {
+                return Err(Invalid::at(
+                    ErrorReason::MissingField,
+                    "tracks.age_s",
+                    "a version 2 TrackFrame needs age_s and time_since_update_s",
+                ));
+            };
+            check_count(age_s, n, "tracks.age_s")?;
+            check_count(tsu_s, n, "tracks.time_since_update_s")?;
+            check_finite(age_s, "tracks.age_s")?;
+            check_finite(tsu_s, "tracks.time_since_update_s")?;
+            if let Some(cov) = &c.covariance {
+                check_count(cov, n, "tracks.covariance")?;
+                check_finite(cov, "tracks.covariance")?;
+            }
+        }
+        v => {
+            return Err(Invalid::at(
+                ErrorReason::WrongVersion,
+                "schema_version",
+                format!("version {v} not supported (this client speaks 1, 2)"),
+            ))
+        }
+    }
     if let Some(p) = &t.pose {
         check_finite(p.as_slice(), "pose")?;
     }
@@ -216,7 +293,7 @@ pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
     let c = &t.tracks;
     let mut p = Packer::new(512 + c.count() * 88);
     p.map(12);
-    p.key("schema_version").uint(SCHEMA_VERSION);
+    p.key("schema_version").uint(t.schema_version);
     p.key("vehicle").str(&t.vehicle);
     p.key("sensor").str(&t.sensor);
     p.key("seq").uint(t.seq);
@@ -230,7 +307,14 @@ pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
     p.key("instance").str(&t.instance);
     p.key("received_ns").uint(t.received_ns);
     p.key("published_ns").uint(t.published_ns);
-    p.key("tracks").map(13);
+    let v2 = t.schema_version == 2;
+    p.key("tracks").map(
+        13 + if v2 {
+            2 + usize::from(c.covariance.is_some())
+        } else {
+            0
+        },
+    );
     p.key("count").uint(c.count() as u64);
     p.key("classes").strs(&c.classes);
     p.key("id").bin(&to_bytes(&c.id));
@@ -245,5 +329,15 @@ pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
     p.key("age").bin(&to_bytes(&c.age));
     p.key("time_since_update")
         .bin(&to_bytes(&c.time_since_update));
+    if v2 {
+        // Version 1 leaves them out: the bytes a version-1 reader takes.
+        if let Some(cov) = &c.covariance {
+            p.key("covariance").bin(&to_bytes(cov));
+        }
+        if let (Some(a), Some(s)) = (&c.age_s, &c.time_since_update_s) {
+            p.key("age_s").bin(&to_bytes(a));
+            p.key("time_since_update_s").bin(&to_bytes(s));
+        }
+    }
     Ok(p.finish())
 }

@@ -450,19 +450,23 @@ inline void check_pose(const Pose& p) {
   }
 }
 
-inline void check_version(const Fields& top) {
+// The version read, one of [lo, hi] (every message but TrackFrame: just kSchemaVersion).
+inline int check_version(const Fields& top, int lo = kSchemaVersion, int hi = kSchemaVersion) {
   const Obj* v = top.get("schema_version");
   if (!v) reject(Reason::missing_field, "schema_version", "field required");
   if (v->type != mt::POSITIVE_INTEGER && v->type != mt::NEGATIVE_INTEGER) {
     reject(Reason::wrong_type, "schema_version", "must be an integer");
   }
-  if (v->type == mt::NEGATIVE_INTEGER || v->via.u64 != static_cast<std::uint64_t>(kSchemaVersion)) {
+  if (v->type == mt::NEGATIVE_INTEGER || v->via.u64 < static_cast<std::uint64_t>(lo) ||
+      v->via.u64 > static_cast<std::uint64_t>(hi)) {
     const std::string shown =
         v->type == mt::NEGATIVE_INTEGER ? std::to_string(v->via.i64) : std::to_string(v->via.u64);
+    std::string speaks = std::to_string(lo);
+    for (int k = lo + 1; k <= hi; ++k) speaks += ", " + std::to_string(k);
     reject(Reason::wrong_version, "schema_version",
-           "version " + shown + " not supported (this service speaks " +
-               std::to_string(kSchemaVersion) + ")");
+           "version " + shown + " not supported (this service speaks " + speaks + ")");
   }
+  return static_cast<int>(v->via.u64);
 }
 
 // seq and stamp_ns of a refused frame, when its map could be read and they are in range.
@@ -602,8 +606,9 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     const msgpack::object_handle handle = unpack(data, size, limits);
     const Fields top(handle.get(), "");
     peek = {peek_int(top, "seq"), peek_int(top, "stamp_ns")};
-    check_version(top);
+    const int version = check_version(top, 1, kTrackSchemaVersion);
     TrackFrame f;
+    f.schema_version = version;
     Header h = header_fields(top);
     f.vehicle = std::move(h.vehicle), f.sensor = std::move(h.sensor);
     f.seq = h.seq, f.stamp_ns = h.stamp_ns, f.frame_id = std::move(h.frame_id);
@@ -623,8 +628,21 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     for (std::size_t i = 0; i < std::size(kColumns); ++i) {
       bins[i] = bin_value(required(tracks, kColumns[i]), tracks.path(kColumns[i]));
     }
-    tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
-                           "score", "velocity", "state", "hits", "age", "time_since_update"});
+    // Version 2's columns, checked after version 1's as the field table orders them.
+    const Obj* covariance = nullptr;
+    std::string_view covariance_bin, age_s_bin, tsu_s_bin;
+    if (version == 2) {
+      covariance = optional(tracks, "covariance");
+      if (covariance) covariance_bin = bin_value(*covariance, "tracks.covariance");
+      age_s_bin = bin_value(required(tracks, "age_s"), "tracks.age_s");
+      tsu_s_bin = bin_value(required(tracks, "time_since_update_s"), "tracks.time_since_update_s");
+      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
+                             "score", "velocity", "state", "hits", "age", "time_since_update",
+                             "covariance", "age_s", "time_since_update_s"});
+    } else {
+      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
+                             "score", "velocity", "state", "hits", "age", "time_since_update"});
+    }
     top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
                         "pose", "key_frame", "instance", "received_ns", "published_ns", "tracks"});
 
@@ -644,6 +662,11 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     t.hits = values_of<std::int32_t>(bins[8], count, "tracks.hits");
     t.age = values_of<std::int32_t>(bins[9], count, "tracks.age");
     t.time_since_update = values_of<std::int32_t>(bins[10], count, "tracks.time_since_update");
+    if (covariance) t.covariance = rows_of<float, 21>(covariance_bin, count, "tracks.covariance");
+    if (version == 2) {
+      t.age_s = values_of<double>(age_s_bin, count, "tracks.age_s");
+      t.time_since_update_s = values_of<double>(tsu_s_bin, count, "tracks.time_since_update_s");
+    }
     return f;
   } catch (const Reject& r) {
     return Rejection{r.reason, r.field, r.detail, peek.seq, peek.stamp_ns};

@@ -223,10 +223,21 @@ inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   check_rows("TrackFrame.tracks.hits", t.hits, n);
   check_rows("TrackFrame.tracks.age", t.age, n);
   check_rows("TrackFrame.tracks.time_since_update", t.time_since_update, n);
+  const bool has_ages = t.age_s && t.time_since_update_s;
+  const int version = f.schema_version.value_or(has_ages ? kTrackSchemaVersion : 1);
+  if (version != 1 && version != 2) {
+    refuse("TrackFrame.schema_version", std::to_string(version) + " is not one of 1, 2");
+  }
+  if (version == 2) {
+    if (!has_ages) refuse("TrackFrame.tracks.age_s", "a version 2 TrackFrame needs both ages");
+    check_rows("TrackFrame.tracks.age_s", *t.age_s, n);
+    check_rows("TrackFrame.tracks.time_since_update_s", *t.time_since_update_s, n);
+    if (t.covariance) check_rows("TrackFrame.tracks.covariance", *t.covariance, n);
+  }
 
   Writer w;
   w.map(12);
-  w.key("schema_version").uint(kSchemaVersion);
+  w.key("schema_version").uint(static_cast<std::uint64_t>(version));
   w.key("vehicle").str(f.vehicle);
   w.key("sensor").str(f.sensor);
   w.key("seq").uint(f.seq);
@@ -238,7 +249,7 @@ inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   w.key("received_ns").uint(f.received_ns);
   w.key("published_ns").uint(f.published_ns);
   w.key("tracks");
-  w.map(13);
+  w.map(version == 1 ? 13 : t.covariance ? 16 : 15);
   w.key("count").uint(n);
   w.key("classes").classes(t.classes);
   w.key("id").column(t.id);
@@ -252,6 +263,11 @@ inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   w.key("hits").column(t.hits);
   w.key("age").column(t.age);
   w.key("time_since_update").column(t.time_since_update);
+  if (version == 2) {  // version 1 leaves them out: the bytes a version-1 reader takes
+    if (t.covariance) w.key("covariance").column(*t.covariance);
+    w.key("age_s").column(*t.age_s);
+    w.key("time_since_update_s").column(*t.time_since_update_s);
+  }
   return w.take();
 }
 

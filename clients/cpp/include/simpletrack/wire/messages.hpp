@@ -16,6 +16,9 @@
 namespace simpletrack::wire {
 
 inline constexpr int kSchemaVersion = 1;
+// TrackFrame alone is at version 2 (covariance, ages in seconds); decode_track_frame reads
+// 1 and 2 (schemas/README.md, "Versioning").
+inline constexpr int kTrackSchemaVersion = 2;
 
 // Ranges and caps of the contract ("DetectionFrame", "Bounds" in schemas/README.md).
 inline constexpr std::uint64_t kInt64Max = 9223372036854775807ULL;
@@ -119,9 +122,21 @@ struct TrackColumns {
   std::vector<std::int32_t> hits;
   std::vector<std::int32_t> age;
   std::vector<std::int32_t> time_since_update;
+  // Version 2. The covariance over x, y, z, vx, vy, vz as its upper triangle, row-major
+  // ((0,0) (0,1) ... (0,5) (1,1) ... (5,5)); absent when the service's motion model keeps
+  // none. Ages in seconds from birth and from the last update to stamp_ns.
+  std::optional<std::vector<std::array<float, 21>>> covariance;
+  std::optional<std::vector<double>> age_s;
+  std::optional<std::vector<double>> time_since_update_s;
 
   std::size_t count() const { return id.size(); }
 };
+
+// Element (r, c) of a 6x6 covariance kept as its upper triangle.
+inline float covariance_at(const std::array<float, 21>& upper, int r, int c) {
+  if (r > c) std::swap(r, c);
+  return upper[static_cast<std::size_t>(r * 6 - r * (r - 1) / 2 + (c - r))];
+}
 
 // `<prefix>/<vehicle>/<sensor>/tracks`
 struct TrackFrame {
@@ -136,6 +151,14 @@ struct TrackFrame {
   std::uint64_t received_ns = 0;
   std::uint64_t published_ns = 0;
   TrackColumns tracks;
+  // What encode writes: nullopt = 2 when the tracks have their ages in seconds, else 1.
+  // decode_track_frame sets the version it read, so a frame re-encodes as it came.
+  std::optional<int> schema_version;
+
+  // The track's fleet-unique id "<vehicle>/<sensor>/<id>" (schemas/README.md, "Track identity").
+  std::string global_id(std::size_t i) const {
+    return vehicle + "/" + sensor + "/" + std::to_string(tracks.id.at(i));
+  }
 };
 
 // `<prefix>/<vehicle>/<sensor>/errors`
@@ -166,13 +189,15 @@ inline bool operator==(const TrackColumns& a, const TrackColumns& b) {
   return a.classes == b.classes && a.id == b.id && a.class_index == b.class_index &&
          a.center == b.center && a.size == b.size && a.yaw == b.yaw && a.score == b.score &&
          a.velocity == b.velocity && a.state == b.state && a.hits == b.hits && a.age == b.age &&
-         a.time_since_update == b.time_since_update;
+         a.time_since_update == b.time_since_update && a.covariance == b.covariance &&
+         a.age_s == b.age_s && a.time_since_update_s == b.time_since_update_s;
 }
 inline bool operator==(const TrackFrame& a, const TrackFrame& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
          a.stamp_ns == b.stamp_ns && a.frame_id == b.frame_id && a.pose == b.pose &&
          a.key_frame == b.key_frame && a.instance == b.instance && a.received_ns == b.received_ns &&
-         a.published_ns == b.published_ns && a.tracks == b.tracks;
+         a.published_ns == b.published_ns && a.tracks == b.tracks &&
+         a.schema_version == b.schema_version;
 }
 inline bool operator==(const FrameError& a, const FrameError& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
