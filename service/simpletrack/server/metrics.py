@@ -20,6 +20,7 @@ from prometheus_client import (
     Gauge,
     Histogram,
     Info,
+    ProcessCollector,
     generate_latest,
 )
 
@@ -197,6 +198,9 @@ class Metrics:
         )
         for direction in ("in", "out"):
             self.handoffs.labels(direction=direction)
+        # CPU, resident memory, open fds: what a leak or a busy loop shows first (the
+        # default registry has these; this one is our own). Empty off Linux.
+        ProcessCollector(registry=r)
         self.build = Info("simpletrack_build", "Versions of this service", registry=r)
         self.build.info(
             {
