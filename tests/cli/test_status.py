@@ -10,7 +10,7 @@ from pathlib import Path
 
 from simpletrack.spawn import free_port
 from tests.scale.fleet import Group
-from tests.service_helpers import ROOT, Client, moving_cars, stamp, wait_for
+from tests.service_helpers import ROOT, Client, moving_cars, stamp, start_service, wait_for
 
 SENSORS = [f"car-{i}" for i in range(8)]
 
@@ -63,3 +63,42 @@ def test_status_with_nobody_answering_says_so_and_fails() -> None:
     out = status("--connect", f"tcp/127.0.0.1:{free_port()}", "--timeout", "0.5")
     assert out.returncode == 1
     assert "no instance answered" in out.stderr
+
+
+def test_status_shows_each_sensors_rate_last_seq_and_resets(tmp_path: Path) -> None:
+    svc = start_service(tmp_path, env={"SIMPLETRACK_RESET_GAP_S": "3"}, instance="st-one")
+    try:
+        cli = Client(svc.endpoint)
+        try:
+            for k in range(4):
+                cli.send("car-r", "lidar", k, stamp(k), moving_cars(k))
+            # 10 s of stamps skipped (reset_gap_s 3): a new tracker for this sensor.
+            for k in range(100, 103):
+                cli.send("car-r", "lidar", k, stamp(k), moving_cars(k))
+            cli.send("car-q", "lidar", 0, stamp(0), moving_cars(0))
+            wait_for(
+                lambda: (
+                    cli.received.n_tracks("car-r/lidar") == 7
+                    and cli.received.n_tracks("car-q/lidar") == 1
+                ),
+                20,
+                "8 frames",
+            )
+        finally:
+            cli.close()
+        out = status("--connect", svc.endpoint, "--json")
+        assert out.returncode == 0, out.stderr
+        [reply] = [json.loads(line) for line in out.stdout.splitlines()]
+        sensors = {x["vehicle"]: x for x in reply["sensors"]}
+        assert (sensors["car-r"]["last_seq"], sensors["car-r"]["resets"]) == (102, 1)
+        assert sensors["car-r"]["rate_hz"] > 0
+        assert (sensors["car-q"]["resets"], sensors["car-q"]["rate_hz"]) == (0, 0.0)
+
+        text = status("--connect", svc.endpoint, "--sensors")
+        assert text.returncode == 0, text.stderr
+        [line] = [x for x in text.stdout.splitlines() if "car-r/lidar" in x]
+        assert "seq=102" in line and "resets=1" in line and "frames=7" in line
+        assert "stamp=2023-11-14T22:13:30.200Z" in line  # stamp(102), UTC
+        assert "rate=0.0/s" not in line
+    finally:
+        svc.stop()

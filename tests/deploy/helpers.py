@@ -130,7 +130,8 @@ def dashboard_queries() -> Iterator[tuple[str, str]]:
 
 def grafana_to_promql(expr: str, rate_interval: str = "1m") -> str:
     """A dashboard query as Prometheus itself would receive it from Grafana."""
-    return expr.replace("$__rate_interval", rate_interval).replace("$instance", ".*")
+    out = expr.replace("$__rate_interval", rate_interval)
+    return out.replace("$instance", ".*").replace("$vehicle", ".*")
 
 
 def alert_rules(groups: dict[str, Any] | None = None) -> list[dict[str, Any]]:

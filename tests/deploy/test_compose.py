@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 from packaging.specifiers import SpecifierSet
 
+from simpletrack.server.metrics import Metrics
 from simpletrack.server.settings import ServiceSettings, load_settings
 from simpletrack.sim.demo import DEMO_PRESET
 from tests.deploy.helpers import (
@@ -308,11 +309,57 @@ def test_the_dashboard_shows_the_group() -> None:
     assert any('reason="missed"' in e for e in per_instance)
     assert "sum by (direction)" in text  # hand-offs in and out
     rows = [p for p in dashboard()["panels"] if p["type"] == "row"]
-    assert [r["title"] for r in rows] == ["Scale-out group"]
+    assert [r["title"] for r in rows] == ["Scale-out group", "Process"]
     panels = dashboard()["panels"]
     for i, a in enumerate(panels):
         for b in panels[i + 1 :]:
             assert not _overlap(a["gridPos"], b["gridPos"]), f"{a['title']!r} over {b['title']!r}"
+
+
+# The counters with a vehicle label (metrics_vehicle_label = true).
+PER_VEHICLE = (
+    "simpletrack_frames_received_total",
+    "simpletrack_frames_tracked_total",
+    "simpletrack_frames_rejected_total",
+    "simpletrack_frames_dropped_total",
+)
+
+
+def test_the_dashboard_filters_the_per_vehicle_counters_by_a_vehicle_variable() -> None:
+    variables = {v["name"]: v for v in dashboard()["templating"]["list"]}
+    vehicle = variables["vehicle"]
+    m = re.fullmatch(r"label_values\((\w+)\{[^}]*\}, (\w+)\)", vehicle["query"]["query"])
+    assert m is not None, vehicle["query"]
+    assert (m.group(1) in PER_VEHICLE, m.group(2)) == (True, "vehicle")
+    # "All" must also match the series without the label (the label is off by default).
+    assert vehicle["includeAll"] and vehicle["allValue"] == ".*"
+    # Every metric of the service with a vehicle label is one of those.
+    labelled = {
+        f"{getattr(m, '_name', '')}_total"
+        for m in vars(Metrics(vehicle_label=True)).values()
+        if "vehicle" in getattr(m, "_labelnames", ())
+    }
+    assert labelled == set(PER_VEHICLE)
+    for title, expr in dashboard_queries():
+        for metric in PER_VEHICLE:
+            for selector in re.findall(rf"{metric}\{{([^}}]*)\}}", expr):
+                assert 'vehicle=~"$vehicle"' in selector, f"{title}: {expr}"
+    assert "sensor" not in variables  # no sensor label: unbounded (simpletrack status)
+
+
+def test_the_dashboard_shows_the_process() -> None:
+    by_title = {p["title"]: p for p in dashboard()["panels"]}
+    for title, metric in (
+        ("CPU per instance", "process_cpu_seconds_total"),
+        ("Resident memory per instance", "process_resident_memory_bytes"),
+        ("Open file descriptors", "process_open_fds"),
+    ):
+        [target, *_] = by_title[title]["targets"]
+        assert metric in target["expr"] and metric in EXPORTED_NAMES, title
+    text = "\n".join(expr for _, expr in dashboard_queries())
+    for metric in ("simpletrack_tracker_resets_total", "simpletrack_frames_dropped_total"):
+        assert metric in text, metric
+    assert 'reason="missed"' in text
 
 
 def _overlap(a: dict[str, int], b: dict[str, int]) -> bool:

@@ -304,5 +304,9 @@ def test_images_match_the_project_and_compose() -> None:
     [image] = KUSTOMIZATION["images"]
     assert image["name"] == container(TRACKER)["image"]
     assert image["newTag"] == project_version()
+    # The registry's one place: the manifests never name one themselves.
+    assert image["newName"].rpartition("/")[2] == "simpletrack-service"
+    assert "/" not in container(TRACKER)["image"] and ":" not in container(TRACKER)["image"]
+    assert "poddisruptionbudget.yaml" in KUSTOMIZATION["resources"]
     compose = load_yaml(COMPOSE)
     assert container(ROUTER)["image"] == compose["services"]["zenoh-router"]["image"]

@@ -215,7 +215,7 @@ def test_serve_user_errors_are_one_line_and_exit_2(
         port = busy.getsockname()[1]
         assert main(["serve", "--metrics-port", str(port), "--listen", "tcp/127.0.0.1:0"]) == 2
     err = capsys.readouterr().err
-    assert "address already in use" in err.lower() and "Traceback" not in err
+    assert f"metrics port {port} on 127.0.0.1 is in use" in err and "Traceback" not in err
 
 
 @pytest.mark.parametrize("doc", ["docs/SERVICE.md", "README.md"])

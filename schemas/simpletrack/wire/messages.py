@@ -144,6 +144,8 @@ class SensorStatus:
     frames: int
     active_tracks: int
     idle_s: float
+    rate_hz: float = 0.0
+    resets: int = 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -316,6 +318,8 @@ SENSOR_STATUS = MapSpec(
         Field("frames", _int64),
         Field("active_tracks", _int64),
         Field("idle_s", number),
+        Field("rate_hz", number, 0.0),
+        Field("resets", _int64, 0),
     ],
 )
 SERVICE_STATUS = MapSpec(

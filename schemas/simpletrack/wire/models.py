@@ -242,6 +242,10 @@ class SensorStatus(WireModel):
     frames: Int64
     active_tracks: Int64
     idle_s: float
+    rate_hz: float = Field(default=0.0, description="frames tracked per second over the last 10 s")
+    resets: Int64 = Field(
+        default=0, description="tracker resets (gap, time_backwards, restart, non_finite) here"
+    )
 
 
 class ServiceStatus(WireModel):

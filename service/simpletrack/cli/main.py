@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
 
 from simpletrack.cli.errors import UserError
 
@@ -16,12 +17,25 @@ from simpletrack.cli.errors import UserError
 EXTRAS_HINT = (
     "the simpletrack command needs the service extra: pip install 'simpletrack-service[service]'"
 )
+DISTRIBUTION = "simpletrack-service"
+
+
+def distribution_version() -> str:
+    """The installed distribution's version: what a bug report needs (a source tree run
+    without installing has none)."""
+    try:
+        return version(DISTRIBUTION)
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="simpletrack",
         description="SimpleTrack 3D multi-object tracking as a Zenoh streaming service.",
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"simpletrack {distribution_version()}"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     from simpletrack.cli import (

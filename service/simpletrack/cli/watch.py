@@ -32,7 +32,8 @@ from simpletrack.wire import WireTrackState
 EPILOG = f"""\
 One row per stream (vehicle/sensor): last seq, frames received, rate, latency from the sensor
 stamp to arrival here (p50/p99 of the last 200 frames; meaningful when sensors stamp with
-wall-clock time), tracks by state. With --detail VEHICLE/SENSOR (or when one stream matches),
+wall-clock time; a negative one, or one over a minute, is marked "!" with the likely cause:
+the stamps are on another clock, or replayed), tracks by state. With --detail VEHICLE/SENSOR (or when one stream matches),
 also that stream's tracks, nearest first. Not on a terminal: one line per stream every
 --interval seconds. Ends on Ctrl-C (exit 0) or after --duration.
 
@@ -88,11 +89,44 @@ class StreamView:
         )
 
 
-def _q(values: deque[float], q: float) -> str:
+# Beyond this a latency is no network's or queue's: the stamps are on another clock (a
+# recording's, a sensor's not in sync).
+FAR_BEHIND_MS = 60_000.0
+AHEAD_HINT = "stamp ahead of receive time: clock offset or replay"
+BEHIND_HINT = "stamp far behind receive time: clock offset or an old recording's stamps"
+
+
+def latency_hint(ms: float) -> str | None:
+    """Why a latency cannot be one (a frame cannot arrive before it was stamped), if so."""
+    if ms < 0:
+        return AHEAD_HINT
+    if ms > FAR_BEHIND_MS:
+        return BEHIND_HINT
+    return None
+
+
+def _quantile_ms(values: deque[float], q: float) -> float | None:
     if not values:
+        return None
+    return float(np.quantile(np.fromiter(values, float), q)) * 1e3
+
+
+def latency_number(ms: float | None) -> str:
+    """A latency with its unit, precise where precision means something."""
+    if ms is None or not math.isfinite(ms):
         return "-"
-    v = float(np.quantile(np.fromiter(values, float), q)) * 1e3
-    return f"{v:.1f}" if abs(v) < 1e6 else "-"
+    if abs(ms) < 100:
+        return f"{ms:.1f} ms"
+    if abs(ms) < 100_000:
+        return f"{ms:.0f} ms"
+    return f"{ms / 1e3:.0f} s"
+
+
+def format_latency(ms: float | None) -> str:
+    """``12.3 ms``, or ``-7505 ms (stamp ahead of receive time: ...)`` when it cannot be one."""
+    text = latency_number(ms)
+    hint = None if ms is None or not math.isfinite(ms) else latency_hint(ms)
+    return f"{text} ({hint})" if hint else text
 
 
 def render(
@@ -104,8 +138,8 @@ def render(
         "seq",
         "frames",
         "Hz",
-        "p50 ms",
-        "p99 ms",
+        "p50",
+        "p99",
         "confirmed",
         "tentative",
         "coasting",
@@ -113,6 +147,15 @@ def render(
         "age s",
     ):
         table.add_column(name, justify="left" if name in ("stream", "frame") else "right")
+    hints: set[str] = set()
+
+    def cell(ms: float | None) -> str:
+        hint = None if ms is None or not math.isfinite(ms) else latency_hint(ms)
+        if hint is None:
+            return latency_number(ms)
+        hints.add(hint)
+        return f"{latency_number(ms)} !"
+
     for name, v in sorted(views.items()):
         confirmed, tentative, coasting = v.states()
         table.add_row(
@@ -120,8 +163,8 @@ def render(
             str(v.last.seq),
             str(v.frames),
             f"{v.rate(now):.1f}",
-            _q(v.latency, 0.5),
-            _q(v.latency, 0.99),
+            cell(_quantile_ms(v.latency, 0.5)),
+            cell(_quantile_ms(v.latency, 0.99)),
             str(confirmed),
             str(tentative),
             str(coasting),
@@ -129,6 +172,7 @@ def render(
             f"{(time.time_ns() - v.last.received_ns) * 1e-9:.1f}",
         )
     parts: list[object] = [Text(f"watching {keys}: {len(views)} stream(s)", style="bold"), table]
+    parts.extend(Text(f"! {hint}", style="yellow") for hint in sorted(hints))
     chosen = detail or (next(iter(views)) if len(views) == 1 else None)
     if chosen in views:
         parts.append(_detail(views[chosen].last, chosen, rows))
@@ -216,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
                     c, t, k = v.states()
                     print(
                         f"{name} seq {v.last.seq} frames {v.frames} {v.rate(now):.1f} Hz "
-                        f"p50 {_q(v.latency, 0.5)} ms tracks {c} confirmed, {t} tentative, "
+                        f"p50 {format_latency(_quantile_ms(v.latency, 0.5))} tracks {c} confirmed, {t} tentative, "
                         f"{k} coasting",
                         flush=True,
                     )

@@ -11,6 +11,7 @@ sensor → snapshot writer flushes → session closed → HTTP closed.
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import signal
 import threading
@@ -92,7 +93,7 @@ class Service:
     def start(self) -> None:
         s = self.settings
         if s.metrics_port:
-            self._http = HttpEndpoint(self.metrics, s.metrics_host, s.metrics_port, self.ready)
+            self._http = self._bind_http()
             self._http.start()
             self.http_port = self._http.port
         session = self._open_session()
@@ -225,6 +226,20 @@ class Service:
             group=s.group,
             members=len(self.membership.members),
         )
+
+    def _bind_http(self) -> HttpEndpoint:
+        s = self.settings
+        try:
+            return HttpEndpoint(self.metrics, s.metrics_host, s.metrics_port, self.ready)
+        except OSError as e:
+            where = f"metrics port {s.metrics_port} on {s.metrics_host}"
+            if e.errno == errno.EADDRINUSE:
+                # The usual cause: a second serve on one host with the default port.
+                raise StartError(
+                    f"{where} is in use (another simpletrack serve?): give this one "
+                    f"--metrics-port (0: no HTTP endpoint)"
+                ) from None
+            raise StartError(f"{where}: cannot bind ({e.strerror or e})") from None
 
     def _open_session(self) -> zenoh.Session | None:
         options = self.settings.zenoh.options()

@@ -20,6 +20,7 @@ from prometheus_client import (
     Gauge,
     Histogram,
     Info,
+    ProcessCollector,
     generate_latest,
 )
 
@@ -198,14 +199,17 @@ class Metrics:
         )
         for direction in ("in", "out"):
             self.handoffs.labels(direction=direction)
-        # By cause (an enum), never by sensor: the sensor is in the log line and in the
-        # status queryable's per-sensor ``warnings`` (docs/SERVICE.md, "Plausibility warnings").
+        # By cause (an enum), never by sensor: the sensor is in the once-per-sensor log line
+        # (docs/SERVICE.md, "Plausibility warnings").
         self.implausible = Counter(
             "simpletrack_implausible_frames",
             "Frames tracked although they look like a unit or convention mistake, by cause",
             ("cause", *v),
             registry=r,
         )
+        # CPU, resident memory, open fds: what a leak or a busy loop shows first (the
+        # default registry has these; this one is our own). Empty off Linux.
+        ProcessCollector(registry=r)
         self.build = Info("simpletrack_build", "Versions of this service", registry=r)
         self.build.info(
             {

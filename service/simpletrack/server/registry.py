@@ -299,6 +299,8 @@ class SensorRegistry:
                 frames=s.frames,
                 active_tracks=s.active_tracks,
                 idle_s=round(now - s.last_seen, 3),
+                rate_hz=round(s.rate_hz(now), 2),
+                resets=s.resets,
             )
             for s in list(self.sensors.values())
         ]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -61,6 +62,10 @@ class _Undo:
     active_tracks: int
 
 
+RATE_WINDOW_S = 10.0  # the status's rate_hz: frames tracked over this window
+RATE_FRAMES = 1024  # at most this many kept for it (over 100 Hz the window shrinks)
+
+
 @dataclass
 class SensorState:
     vehicle: str
@@ -77,6 +82,8 @@ class SensorState:
     # (standby, frames) of the last checkpoint sent: unchanged, nothing to send
     checkpoint_mark: tuple[str, int] | None = None
     _undo: _Undo | None = None
+    resets: int = 0  # on this instance (the status's, not kept in snapshots)
+    tracked_at: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_FRAMES))
 
     @property
     def id_next(self) -> int:
@@ -128,6 +135,7 @@ class SensorState:
         self.tracker.reset()
         self.stamp_origin_ns = stamp_ns
         self.active_tracks = 0
+        self.resets += 1
 
     def tracker_stamp(self, stamp_ns: int) -> float:
         """The tracker's time of a frame: seconds since the first frame (or the last reset)."""
@@ -142,7 +150,16 @@ class SensorState:
         self.before, self.last = self.last, frame
         self.frames += 1
         self.dirty = True
+        self.tracked_at.append(time.monotonic())
         return delta
+
+    def rate_hz(self, now: float) -> float:
+        """Frames tracked per second over the last ``RATE_WINDOW_S`` (0 when fewer than two):
+        falls to 0 within the window once the sensor stops."""
+        recent = [t for t in tuple(self.tracked_at) if now - t <= RATE_WINDOW_S]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)
 
     def snapshot(self, digest: str, with_tracker: bool = True) -> SensorSnapshot:
         last = self.last

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import re
 import socket
 import sys
@@ -32,6 +33,7 @@ from pydantic import (
 from pydantic.fields import FieldInfo
 from pydantic_settings import (
     BaseSettings,
+    EnvSettingsSource,
     InitSettingsSource,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
@@ -92,6 +94,51 @@ def _default_instance() -> str:
 
 
 Endpoint = Annotated[str, Field(min_length=ENDPOINT_LENGTH[0], max_length=ENDPOINT_LENGTH[1])]
+
+
+class EnvValueError(Exception):
+    """An environment variable no list or object can be read from. Not a ValueError:
+    pydantic-settings would wrap that in a message naming neither variable nor value."""
+
+
+def _is_list(annotation: Any) -> bool:
+    if get_origin(annotation) is list or annotation is list:
+        return True
+    return any(_is_list(a) for a in get_args(annotation) if a is not type(None))
+
+
+class ListFriendlyEnvSource(EnvSettingsSource):
+    """``SIMPLETRACK_*`` variables, where a list may also be given comma-separated
+    (``SIMPLETRACK_ZENOH__CONNECT=tcp/a:7447,tcp/b:7447``): the form a shell and a
+    Kubernetes manifest write; a value starting with ``[`` is read as JSON."""
+
+    def decode_complex_value(self, field_name: str, field: FieldInfo | None, value: Any) -> Any:
+        if not isinstance(value, str):
+            return super().decode_complex_value(field_name, field, value)  # type: ignore[arg-type]
+        listed = field is not None and _is_list(field.annotation)
+        text = value.strip()
+        if listed and not text.startswith("["):
+            return [item.strip() for item in text.split(",") if item.strip()]
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError:
+            form = (
+                'a comma-separated list (a,b) or a JSON list (["a","b"])'
+                if listed
+                else f"a JSON object, or one variable per field ({self._name(field_name, value)}__<FIELD>)"
+            )
+            raise EnvValueError(
+                f"{self._name(field_name, value)}={value!r}: expected {form}"
+            ) from None
+
+    def _name(self, field_name: str, value: str) -> str:
+        """The variable that held ``value``: pydantic-settings passes only the last key."""
+        want = field_name.lower()
+        for name, v in self.env_vars.items():
+            low = name.lower()
+            if v == value and low.startswith(ENV_PREFIX.lower()) and low.endswith(want):
+                return name.upper()
+        return f"{ENV_PREFIX}{field_name.upper()}"
 
 
 class ZenohSettings(BaseModel):
@@ -325,7 +372,8 @@ class ServiceSettings(BaseSettings):
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         file_values = _FILE_VALUES.get()
-        return (init_settings, env_settings, InitSettingsSource(settings_cls, file_values))
+        env = ListFriendlyEnvSource(settings_cls)
+        return (init_settings, env, InitSettingsSource(settings_cls, file_values))
 
     # Resolved once, when the settings load: settings that load always make a tracker.
     _tracker_config: TrackerConfig = PrivateAttr()
@@ -379,6 +427,8 @@ def load_settings(
         return ServiceSettings(**dict(overrides or {}))
     except ValidationError as e:
         raise ValueError(format_error(e)) from None
+    except EnvValueError as e:
+        raise ValueError(str(e)) from None
     finally:
         _FILE_VALUES.reset(token)
 

@@ -17,6 +17,10 @@ pub struct SensorStatus {
     pub frames: u64,
     pub active_tracks: u64,
     pub idle_s: f64,
+    /// Frames tracked per second over the last 10 s (0 from a service without the field).
+    pub rate_hz: f64,
+    /// Tracker resets (gap, time_backwards, restart, non_finite) on this instance.
+    pub resets: u64,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -52,6 +56,8 @@ fn sensor_status(v: &V<'_>) -> Checked<SensorStatus> {
         frames: f.required("frames", int64)?,
         active_tracks: f.required("active_tracks", int64)?,
         idle_s: f.required("idle_s", number)?,
+        rate_hz: f.optional("rate_hz", 0.0, number)?,
+        resets: f.optional("resets", 0, int64)?,
     };
     f.finish()?;
     Ok(s)
