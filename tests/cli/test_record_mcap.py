@@ -122,16 +122,22 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 def test_recording_holds_the_payloads_with_schemas(recorded: Path) -> None:
     (summary, metadata), messages = read(recorded)
     assert summary is not None  # finished: indexed, with statistics
-    assert summary.statistics.message_count == 2 * N
-    topics = {c.topic for c in summary.channels.values()}
+    raw = {i: c for i, c in summary.channels.items() if c.message_encoding == "msgpack"}
+    assert sum(summary.statistics.channel_message_counts[i] for i in raw) == 2 * N
+    topics = {c.topic for c in raw.values()}
     assert topics == {f"fleet/synth/{s}/{leaf}" for s in SEQS for leaf in ("detections", "tracks")}
-    schemas = {s.name: s for s in summary.schemas.values()}
+    # The Foxglove twins (tests/cli/test_record_mcap_foxglove.py) sit on their own topics.
+    assert {c.topic for c in summary.channels.values()} - topics == {
+        f"{t}/{twin}" for t in topics for twin in ("json", "scene")
+    }
+    schemas = {
+        summary.schemas[c.schema_id].name: summary.schemas[c.schema_id] for c in raw.values()
+    }
     assert sorted(schemas) == ["DetectionFrame", "TrackFrame"]
     for name, schema in schemas.items():
         assert schema.encoding == "jsonschema"
         assert schema.data == (ROOT / "schemas" / "json" / f"{name}.schema.json").read_bytes()
-    for channel in summary.channels.values():
-        assert channel.message_encoding == "msgpack"
+    for channel in raw.values():
         want = "DetectionFrame" if channel.topic.endswith("detections") else "TrackFrame"
         assert summary.schemas[channel.schema_id].name == want
     assert metadata["simpletrack"]["tool"] == "simpletrack record"
@@ -140,6 +146,8 @@ def test_recording_holds_the_payloads_with_schemas(recorded: Path) -> None:
 
     seqs: dict[str, list[int]] = {}
     for _, channel, message in messages:
+        if channel.message_encoding != "msgpack":
+            continue
         seq, stamp = peek_header(message.data)
         assert seq is not None and stamp is not None
         assert (message.sequence, message.publish_time) == (seq, stamp)
@@ -186,7 +194,7 @@ def test_sigterm_during_recording_leaves_a_complete_file(tmp_path: Path) -> None
         out = tmp_path / "term.mcap"
         rec = record(
             "--format", "mcap", "--out", str(out), "--connect", svc.endpoint,
-            "--what", "tracks,errors",
+            "--what", "tracks,errors", "--no-foxglove",
         )  # fmt: skip
         for k in range(5):
             client.send("veh", "lidar", k, stamp(k), moving_cars(k, 2))
@@ -199,8 +207,10 @@ def test_sigterm_during_recording_leaves_a_complete_file(tmp_path: Path) -> None
         svc.stop()
     assert code == 0, err
     assert "interrupted: 5 messages" in stdout, stdout
-    (summary, _), messages = read(out)
+    (summary, metadata), messages = read(out)
     assert summary is not None and summary.statistics.message_count == 5
+    assert {c.topic for c in summary.channels.values()} == {"fleet/veh/lidar/tracks"}
+    assert metadata["simpletrack"]["foxglove"] == "false"
     assert [peek_header(m.data)[0] for _, _, m in messages] == list(range(5))
 
 
@@ -240,4 +250,7 @@ def test_record_mcap_refuses_mistakes_in_one_line(
     assert "folder" in one_line_error(capsys, "record", "--format", "mcap", "--out", str(tmp_path))
     assert "mcap only" in one_line_error(
         capsys, "record", "--out", str(tmp_path / "j"), "--sensors", "v/s"
+    )
+    assert "--no-foxglove" in one_line_error(
+        capsys, "record", "--out", str(tmp_path / "j"), "--no-foxglove"
     )

@@ -36,8 +36,12 @@ formats:
   mcap    OUT is a file: every message on the --sensors' detections, tracks and errors
           keys (--what), payload bytes unchanged (message encoding msgpack, JSON Schema of
           each message), one channel per key; log time = receive time, publish time = the
-          frame's stamp. `simpletrack replay mcap OUT` publishes its detections again;
-          `mcap info OUT` and Foxglove open it. --frames counts messages here.
+          frame's stamp. For Foxglove (which decodes no msgpack), each key also gets
+          <key>/json (the message as JSON, bins base64) and detections and tracks
+          <key>/scene (foxglove.SceneUpdate boxes for the 3D panel), and detections with a
+          pose <key>/tf (foxglove.FrameTransform); --no-foxglove writes only the raw
+          channels. `simpletrack replay mcap OUT` publishes its detections again;
+          `mcap info OUT` and Foxglove open it. --frames counts raw messages here.
 
 Stops on Ctrl-C or SIGTERM (exit 0, files complete), after --frames N frames, after
 --duration S seconds, or after --idle S seconds without frames once some arrived.
@@ -88,6 +92,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default=",".join(LEAVES),
         help=f"mcap: comma-separated keys of each sensor to record (default {','.join(LEAVES)})",
     )
+    p.add_argument(
+        "--no-foxglove",
+        action="store_true",
+        help="mcap: only the raw msgpack channels, not their JSON, scene and transform twins",
+    )
     p.add_argument("--frames", type=int, help="stop after this many frames")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--idle", type=float, help="stop after this many seconds without frames")
@@ -106,6 +115,8 @@ def _check(args: argparse.Namespace) -> str:
             raise UserError(f"--out {args.out} is a folder; mcap writes a file")
     elif args.sensors is not None or args.what != ",".join(LEAVES):
         raise UserError("--sensors and --what apply to --format mcap only")
+    elif args.no_foxglove:
+        raise UserError("--no-foxglove applies to --format mcap only")
     keys = args.keys or f"{prefix}/*/*/tracks"
     try:
         zenoh.KeyExpr(keys)
@@ -216,7 +227,7 @@ def run_mcap(args: argparse.Namespace) -> int:
     try:
         session = open_client_session(options)
         try:
-            recorder = McapRecorder(args.out, args.prefix)
+            recorder = McapRecorder(args.out, args.prefix, foxglove=not args.no_foxglove)
             subs = subscribe(session, args.prefix, sensors, what, recorder)
             if not args.quiet:
                 streams = " ".join(f"{v}/{s}" for v, s in sensors)

@@ -1,5 +1,6 @@
 """``simpletrack record --format mcap``: every sample of the chosen sensors' detections, tracks
-and errors keys, its payload bytes unchanged, into one MCAP file (layout in mcap_format)."""
+and errors keys, its payload bytes unchanged, into one MCAP file (layout in mcap_format), and
+unless told not to, the same messages in forms Foxglove shows (mcap_foxglove)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from simpletrack.cli.mcap_format import (
     split_key,
     version,
 )
+from simpletrack.cli.mcap_foxglove import JSON_ENCODING, Derived, FoxgloveChannels, foxglove_schema
 from simpletrack.client.publisher import check_name
 from simpletrack.wire.header import peek_header
 
@@ -56,9 +58,9 @@ def parse_what(text: str, choices: tuple[str, ...]) -> list[str]:
 
 class McapRecorder:
     """Writes samples as they arrive (from Zenoh's threads, hence the lock); channels and
-    schemas are registered on a key's first sample."""
+    schemas are registered on a topic's first message. ``messages`` counts the raw samples."""
 
-    def __init__(self, path: Path, prefix: str) -> None:
+    def __init__(self, path: Path, prefix: str, foxglove: bool = True) -> None:
         try:
             self._file: BinaryIO = open(path, "wb")  # noqa: SIM115 (closed in close())
         except OSError as exc:
@@ -67,27 +69,38 @@ class McapRecorder:
         self._writer = Writer(self._file)
         self._writer.start(profile="", library=f"simpletrack {version()}")
         self._writer.add_metadata(
-            METADATA_NAME, {"tool": TOOL, "version": version(), "prefix": prefix}
+            METADATA_NAME,
+            {
+                "tool": TOOL,
+                "version": version(),
+                "prefix": prefix,
+                "foxglove": str(foxglove).lower(),
+            },
         )
         self._lock = threading.Lock()
-        self._schemas: dict[str, int] = {}
+        self._foxglove = FoxgloveChannels() if foxglove else None
+        self._schemas: dict[tuple[str, str], int] = {}
         self._channels: dict[str, int] = {}
         self._closed = False
         self.messages = 0
         self.last_ns: int | None = None
 
-    def _channel(self, key: str, leaf: str) -> int:
-        channel = self._channels.get(key)
+    def _channel(self, topic: str, encoding: str, name: str, data: bytes) -> int:
+        channel = self._channels.get(topic)
         if channel is None:
-            schema = self._schemas.get(leaf)
+            schema = self._schemas.get((name, encoding))
             if schema is None:
-                schema = self._writer.register_schema(
-                    SCHEMA_NAMES[leaf], SCHEMA_ENCODING, schema_data(leaf)
-                )
-                self._schemas[leaf] = schema
-            channel = self._writer.register_channel(key, MESSAGE_ENCODING, schema)
-            self._channels[key] = channel
+                schema = self._writer.register_schema(name, SCHEMA_ENCODING, data)
+                self._schemas[(name, encoding)] = schema
+            channel = self._writer.register_channel(topic, encoding, schema)
+            self._channels[topic] = channel
         return channel
+
+    def _raw_channel(self, key: str, leaf: str) -> int:
+        return self._channel(key, MESSAGE_ENCODING, SCHEMA_NAMES[leaf], schema_data(leaf))
+
+    def _derived_channel(self, d: Derived) -> int:
+        return self._channel(d.topic, JSON_ENCODING, d.schema, foxglove_schema(d.schema))
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         received = time.time_ns()
@@ -97,17 +110,24 @@ class McapRecorder:
             return
         payload = sample.payload.to_bytes()
         seq, stamp = peek_header(payload)
+        publish = received if stamp is None else stamp
+        # MCAP's sequence is 32 bits: wire seqs past that wrap.
+        sequence = 0 if seq is None else seq % _UINT32
         with self._lock:
             if self._closed:
                 return
-            self._writer.add_message(
-                self._channel(key, parts[3]),
-                log_time=received,
-                data=payload,
-                publish_time=received if stamp is None else stamp,
-                # MCAP's sequence is 32 bits: wire seqs past that wrap.
-                sequence=0 if seq is None else seq % _UINT32,
+            # Under the lock: the scene converter keeps per-sensor state.
+            derived = (
+                self._foxglove.derive(key, parts[3], parts[1], parts[2], payload)
+                if self._foxglove is not None
+                else []
             )
+            channels = [(self._raw_channel(key, parts[3]), payload)]
+            channels += [(self._derived_channel(d), d.data) for d in derived]
+            for channel, data in channels:
+                self._writer.add_message(
+                    channel, log_time=received, data=data, publish_time=publish, sequence=sequence
+                )
             self.messages += 1
             self.last_ns = received
 
