@@ -22,7 +22,7 @@ CORE_ALLOWED = {
 
 # Layer -> the simpletrack layers it may import (itself always). Tools may import anything
 # below the CLI; nothing below the tools may import a tool.
-TOOLS = {"datasets", "eval", "sim", "bench", "plot", "spawn"}
+TOOLS = {"datasets", "eval", "sim", "bench", "plot", "spawn", "mcap"}
 MAY_IMPORT: dict[str, set[str]] = {
     "core": set(),
     "wire": {"core"},  # only wire/convert.py, checked below
@@ -34,7 +34,19 @@ MAY_IMPORT: dict[str, set[str]] = {
     "datasets": {"core", "wire"},
     "eval": {"core", "wire", "session", "datasets", "spawn", "server"},
     "spawn": {"core", "wire", "session", "server"},
-    "sim": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server"},
+    "sim": {
+        "core",
+        "wire",
+        "session",
+        "client",
+        "datasets",
+        "eval",
+        "spawn",
+        "server",
+        "view",
+        "mcap",
+    },
+    "mcap": {"wire", "client"},  # recordings: the wire's schemas and keys, no service
     "bench": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server", "sim"},
     "plot": {"core", "datasets"},
     "cli": {"core", "wire", "session", "client", "server", "ros2", "view", *TOOLS},

@@ -5,6 +5,7 @@ service gives the same tracks; SIGTERM leaves a complete file; bad files are one
 from __future__ import annotations
 
 import signal
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -198,6 +199,7 @@ def test_sigterm_during_recording_leaves_a_complete_file(tmp_path: Path) -> None
         )  # fmt: skip
         for k in range(5):
             client.send("veh", "lidar", k, stamp(k), moving_cars(k, 2))
+            time.sleep(0.3)  # spread over 1.5 s: the later frames find the recorder listening
         wait_for(lambda: client.received.n_tracks("veh/lidar") == 5, 30, "5 track frames")
         rec.proc.send_signal(signal.SIGTERM)
         code, stdout, err = rec.wait()
@@ -206,12 +208,15 @@ def test_sigterm_during_recording_leaves_a_complete_file(tmp_path: Path) -> None
         client.close()
         svc.stop()
     assert code == 0, err
-    assert "interrupted: 5 messages" in stdout, stdout
     (summary, metadata), messages = read(out)
-    assert summary is not None and summary.statistics.message_count == 5
+    # The recorder's subscription reaches the service some time after it says "recording"
+    # (no signal tells when: a loaded machine took over 0.5 s); what it heard, it kept whole.
+    n = len(messages)
+    assert f"interrupted: {n} messages" in stdout, stdout
+    assert n >= 1 and summary is not None and summary.statistics.message_count == n
     assert {c.topic for c in summary.channels.values()} == {"fleet/veh/lidar/tracks"}
     assert metadata["simpletrack"]["foxglove"] == "false"
-    assert [peek_header(m.data)[0] for _, _, m in messages] == list(range(5))
+    assert [peek_header(m.data)[0] for _, _, m in messages] == list(range(5 - n, 5))
 
 
 def test_replay_mcap_refuses_bad_files_in_one_line(

@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 import zenoh
 
-from simpletrack.cli.mcap_foxglove import FoxgloveChannels, flatten, foxglove_schema
 from simpletrack.cli.replay_mcap import load
+from simpletrack.mcap.foxglove import FoxgloveChannels, flatten, foxglove_schema
 from simpletrack.session import open_session
 from simpletrack.wire import Rejection, decode_track_frame, encode_detection_frame
 from tests.cli.test_record_mcap import kill_leftovers, read, record, service
 from tests.service_helpers import ROOT, Client, free_port, moving_cars, stamp, wait_for
 
 FRAMES = 6
-VENDORED = ROOT / "service" / "simpletrack" / "cli" / "foxglove"
+VENDORED = ROOT / "clients" / "simpletrack" / "mcap" / "foxglove_schemas"
 YAW = 0.5
 TRANSLATION = (100.0, 50.0, 2.0)
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simpletrack.wire import BoxArrays
+from simpletrack.wire import BoxArrays, Rejection, ServiceStatus, decode_message
 from tests.service_helpers import client, metric, moving_cars, start_service, wait_for
 
 pytestmark = pytest.mark.zenoh
@@ -82,7 +82,12 @@ def test_implausible_frames_are_counted_logged_once_and_still_tracked(tmp_path: 
             assert len(cli.received.tracks["v1/clean"][-1][1]) == 3
             assert len(cli.received.tracks["v1/deg"][-1][1]) == 3
             assert len(cli.received.tracks["v1/logit"][-1][1]) == 0  # the silence now explained
-
+            # Per sensor, in the status queryable: what the metric (by cause) cannot say.
+            [raw] = cli.get(f"fleet/@simpletrack/{svc.instance}/status")
+            status = decode_message(raw, ServiceStatus)
+            assert not isinstance(status, Rejection), status
+            per_sensor = {x.sensor: x.implausible_frames for x in status.sensors}
+            assert per_sensor == {**{s: FRAMES for s in SENSORS}, "clean": 0}, per_sensor
         values = svc.metrics()
         for _, _, cause, _ in SENSORS.values():
             assert metric(values, IMPLAUSIBLE, cause=cause) == FRAMES, cause

@@ -152,3 +152,54 @@ def test_the_demo_serves_its_fleet_in_the_browser_view_and_loses_no_frame() -> N
         assert s["fov"]["deg"] == (360.0 if name.endswith("lidar") else 100.0)
     assert result.unanswered == 0
     assert result.stats.tracked == result.stats.sent
+
+
+def test_a_demo_recording_opens_in_mcap_and_replays_to_the_same_tracks(tmp_path: Path) -> None:
+    """``demo --mcap`` records what travelled; ``replay mcap`` of its detections into a fresh
+    service with the demo's tracker settings gives the tracks the demo's planner got."""
+    from simpletrack.sim.demo_tracker import write_class_overrides
+    from tests.cli.test_record_mcap import kill_leftovers, read, record, tracks_by_frame
+    from tests.cli.test_replay_record import cli
+    from tests.service_helpers import start_service
+
+    out = tmp_path / "demo.mcap"
+    proc = subprocess.run(
+        [*MAIN, "demo", "--duration", "3", "--vehicles", "1", "--no-view", "--mcap", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=120, env=ENV,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert f"wrote {out}" in proc.stdout
+    (summary, metadata), messages = read(out)
+    assert summary is not None and metadata["simpletrack"]["prefix"] == "fleet"
+    detections = [m for _, c, m in messages if c.topic.endswith("/detections")]
+    want = tracks_by_frame(messages)
+    assert len(want) == len(detections) > 40  # every frame answered, and recorded
+
+    overrides = write_class_overrides()
+    state = tmp_path / "state"
+    state.mkdir()
+    svc = start_service(
+        tmp_path, "--preset", "wod", "--class-overrides", str(overrides),
+        "--backpressure", "block", "--state-dir", str(state), instance="demo-replay",
+    )  # fmt: skip
+    try:
+        again = tmp_path / "again.mcap"
+        rec = record(
+            "--format", "mcap", "--out", str(again), "--connect", svc.endpoint,
+            "--what", "tracks", "--frames", str(len(want)), "--no-foxglove",
+        )  # fmt: skip
+        done = cli("replay", "mcap", str(out), "--rate", "max", "--connect", svc.endpoint)
+        assert done.returncode == 0, done.stdout + done.stderr
+        code, _, err = rec.wait()
+        assert code == 0, err
+    finally:
+        kill_leftovers()
+        svc.stop()
+        overrides.unlink()
+    got = tracks_by_frame(read(again)[1])
+    assert sorted(got) == sorted(want)
+    for frame, (ids, classes, center, size, yaw, state_codes) in want.items():
+        g_ids, g_classes, g_center, g_size, g_yaw, g_state = got[frame]
+        assert (g_ids, g_classes, g_state) == (ids, classes, state_codes), frame
+        assert (g_center == center).all() and (g_size == size).all() and (g_yaw == yaw).all()
+    assert sum(len(v[0]) for v in want.values()) > 100  # the demo's world was tracked

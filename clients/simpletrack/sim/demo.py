@@ -33,6 +33,8 @@ from simpletrack.client.publisher import DetectionPublisher
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_to_json
+from simpletrack.mcap.format import LEAVES
+from simpletrack.mcap.writer import McapRecorder, subscribe
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.sim.baseline import detections_alone
 from simpletrack.sim.demo_stats import FleetStats
@@ -69,6 +71,7 @@ class DemoOptions:
     service_log: Path | None = None
     drain_s: float = 2.0  # after the last frame, wait this long for its tracks
     view_port: int | None = 8090  # the browser view's port (0: any free one; None: no view)
+    mcap: Path | None = None  # record the fleet's detections, tracks and errors here
 
 
 @dataclass
@@ -245,9 +248,11 @@ class FleetDemo:
         endpoint = o.listen or free_endpoint()
         service = _Service(o, endpoint)
         client = o.client or ZenohOptions(connect=[endpoint])
-        # The fleet's session listens and the view's connects to it: peers do not pass on
-        # each other's samples, so the view hears detections straight from the publishers.
-        fleet_listen = free_endpoint() if o.view_port is not None and o.client is None else None
+        # The fleet's session listens and the observers' (view, recorder) connects to it:
+        # peers do not pass on each other's samples, so they hear detections straight from
+        # the publishers.
+        observing = o.view_port is not None or o.mcap is not None
+        fleet_listen = free_endpoint() if observing and o.client is None else None
         if fleet_listen is not None:
             client = ZenohOptions(connect=[endpoint], listen=[fleet_listen])
         if o.service is ServiceMode.EXTERNAL:
@@ -258,6 +263,8 @@ class FleetDemo:
         result = DemoResult(self.stats, 0.0, 0, endpoint, o.service, "duration")
         session = None
         view: ViewServer | None = None
+        recorder: McapRecorder | None = None
+        recording: list[Any] = []
         view_session = None
         try:
             service.start()
@@ -288,13 +295,20 @@ class FleetDemo:
                     raise RuntimeError(f"no tracking service answered on {endpoint}")
             if o.service is ServiceMode.EXTERNAL:
                 self._check_external(session)
-            if o.view_port is not None:
-                # Only now: the view's detections subscriber would pass for the service in
+            if observing:
+                # Only now: an observer's detections subscriber would pass for the service in
                 # wait_for_service, and the first frames would go before it listens.
                 view_options = o.client or ZenohOptions(
                     connect=[endpoint, *([fleet_listen] if fleet_listen else [])]
                 )
-                view_session, view = self._start_view(view_options, result)
+                view_session = open_session(view_options)
+                if o.view_port is not None:
+                    view = self._start_view(view_session, result)
+                if o.mcap is not None:
+                    recorder = McapRecorder(o.mcap, o.prefix)
+                    recording = subscribe(
+                        view_session, o.prefix, [("*", "*")], list(LEAVES), recorder
+                    )
             result.stopped_by = self._loop(sim, pubs, sub, service, result, on_tick)
             self._drain(sub, o.drain_s)
             result.unanswered = self._unanswered()
@@ -302,8 +316,12 @@ class FleetDemo:
         finally:
             if view is not None:
                 view.close()
+            for rec_sub in recording:
+                rec_sub.undeclare()
+            if recorder is not None:
+                recorder.close()
             if view_session is not None:
-                view_session.close()
+                view_session.close()  # type: ignore[no-untyped-call]
             if session is not None:
                 session.close()  # type: ignore[no-untyped-call]
             service.stop()
@@ -312,26 +330,21 @@ class FleetDemo:
                     w.close()
         return result
 
-    def _start_view(self, options: ZenohOptions, result: DemoResult) -> tuple[Any, ViewServer]:
-        """The browser view on a Zenoh session of its own, like any planner's: tracks and
-        detections of the whole fleet, each sensor's field of view from the simulator. (On
-        the publishers' own session, its detections subscriber cost the service frames.) A
-        taken port is not worth failing the demo for: any free port then, said in the URL."""
+    def _start_view(self, session: Any, result: DemoResult) -> ViewServer:
+        """The browser view on the observers' Zenoh session, a planner's like any other:
+        tracks and detections of the whole fleet, each sensor's field of view from the
+        simulator. A taken port is not worth failing the demo for: any free port then, said
+        in the URL."""
         port = self.options.view_port or 0
         fov = {s.name: Fov(s.fov_deg, s.max_range) for s in self.options.sim.sensors}
         prefix = self.options.prefix
-        session = open_session(options)
         try:
-            try:
-                view = serve_view(session, prefix, port=port, detections=True, fov=fov)
-            except PortInUse:
-                view = serve_view(session, prefix, port=0, detections=True, fov=fov)
-        except BaseException:
-            session.close()  # type: ignore[no-untyped-call]
-            raise
+            view = serve_view(session, prefix, port=port, detections=True, fov=fov)
+        except PortInUse:
+            view = serve_view(session, prefix, port=0, detections=True, fov=fov)
         first = f"{vehicle_id(0)}/{self.options.sim.sensors[0].name}"
         result.view_url = f"{view.url}?sensor={first}"
-        return session, view
+        return view
 
     def _check_external(self, session: Any) -> None:
         """A running service must track the simulator's classes, or every frame is refused."""

@@ -146,6 +146,7 @@ class SensorStatus:
     idle_s: float
     rate_hz: float = 0.0
     resets: int = 0
+    implausible_frames: int = 0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -320,6 +321,7 @@ SENSOR_STATUS = MapSpec(
         Field("idle_s", number),
         Field("rate_hz", number, 0.0),
         Field("resets", _int64, 0),
+        Field("implausible_frames", _int64, 0),
     ],
 )
 SERVICE_STATUS = MapSpec(

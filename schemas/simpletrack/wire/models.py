@@ -246,6 +246,10 @@ class SensorStatus(WireModel):
     resets: Int64 = Field(
         default=0, description="tracker resets (gap, time_backwards, restart, non_finite) here"
     )
+    implausible_frames: Int64 = Field(
+        default=0,
+        description="frames tracked with a plausibility warning (units, conventions) here",
+    )
 
 
 class ServiceStatus(WireModel):

@@ -91,6 +91,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "0: any free one)",
     )
     p.add_argument("--no-view", action="store_true", help="no browser view")
+    p.add_argument(
+        "--mcap",
+        type=Path,
+        metavar="FILE",
+        help="record the fleet's detections, tracks and errors to this MCAP file (replay it "
+        "with `simpletrack replay mcap FILE`)",
+    )
     add_zenoh_args(p)
     p.set_defaults(func=run)
 
@@ -107,6 +114,8 @@ def _options(args: argparse.Namespace) -> object:
         raise UserError(f"--metrics-port {args.metrics_port} is not a port number")
     if not 0 <= args.view_port <= 65535:
         raise UserError(f"--view-port {args.view_port} is not a port number")
+    if args.mcap is not None and not args.mcap.parent.is_dir():
+        raise UserError(f"--mcap {args.mcap}: no folder {args.mcap.parent}")
     try:
         sim = SimConfig(
             seed=args.seed, vehicles=args.vehicles, objects=args.objects, rate_hz=args.rate
@@ -148,6 +157,7 @@ def _options(args: argparse.Namespace) -> object:
         metrics_port=args.metrics_port,
         service_log=args.service_log,
         view_port=None if args.no_view else args.view_port,
+        mcap=args.mcap,
     )
 
 
@@ -214,6 +224,8 @@ def run(args: argparse.Namespace) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(summary_json(result, options), indent=1) + "\n")
         print(f"  wrote {args.json}")
+    if args.mcap is not None:
+        print(f"  wrote {args.mcap} (replay it: simpletrack replay mcap {args.mcap})")
     sys.stdout.flush()
     if result.stopped_by == "interrupted":
         return 0  # Ctrl-C is the documented way to end it

@@ -21,9 +21,9 @@ from simpletrack.cli.common import (
     open_client_session,
 )
 from simpletrack.cli.errors import UserError
-from simpletrack.cli.mcap_format import LEAVES
 from simpletrack.client.subscriber import TrackSubscriber
 from simpletrack.datasets.recording import JsonlWriter, KittiWriter, message_to_json
+from simpletrack.mcap.format import LEAVES
 
 EPILOG = f"""\
 formats:
@@ -208,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_mcap(args: argparse.Namespace) -> int:
-    from simpletrack.cli.record_mcap import McapRecorder, parse_sensors, parse_what, subscribe
+    from simpletrack.cli.record_mcap import parse_sensors, parse_what
+    from simpletrack.mcap.writer import McapRecorder, subscribe
 
     sensors = parse_sensors(args.sensors)
     what = parse_what(args.what, LEAVES)
@@ -227,7 +228,10 @@ def run_mcap(args: argparse.Namespace) -> int:
     try:
         session = open_client_session(options)
         try:
-            recorder = McapRecorder(args.out, args.prefix, foxglove=not args.no_foxglove)
+            try:
+                recorder = McapRecorder(args.out, args.prefix, foxglove=not args.no_foxglove)
+            except OSError as exc:
+                raise UserError(f"--out {args.out}: {exc.strerror}") from None
             subs = subscribe(session, args.prefix, sensors, what, recorder)
             if not args.quiet:
                 streams = " ".join(f"{v}/{s}" for v, s in sensors)

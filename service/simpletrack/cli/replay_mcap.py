@@ -16,11 +16,11 @@ from mcap.reader import make_reader
 
 from simpletrack.cli.common import check_prefix, client_options, open_client_session
 from simpletrack.cli.errors import UserError
-from simpletrack.cli.mcap_format import MESSAGE_ENCODING, split_key
 from simpletrack.cli.record_mcap import parse_sensors
 from simpletrack.cli.replay import Answers, _progress, parse_rate
 from simpletrack.client.publisher import CONGESTION, MSGPACK
 from simpletrack.client.subscriber import TrackSubscriber
+from simpletrack.mcap.format import MESSAGE_ENCODING, split_key
 from simpletrack.session import Congestion
 from simpletrack.wire import FrameError, Rejection, decode_message
 from simpletrack.wire.header import peek_header

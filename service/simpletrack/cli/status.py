@@ -28,7 +28,8 @@ One block per instance that answered: its view of the group's members, ready or 
 depth, sensors owned, sensors it stands by for, hand-offs in/out, failovers. Members that some instance sees but that did not answer are listed as silent.
 With --sensors, one line per sensor owned: last seq and its stamp (UTC), frames tracked per
 second over the last 10 s, frames, tracker resets (stamp gaps, time going back, publisher
-restarts) on this instance, tracks, seconds since its last frame.
+restarts) and frames with a plausibility warning (units, conventions) on this instance,
+tracks, seconds since its last frame.
 Exit 1 when no instance answered.
 
 {ZENOH_NOTE}
@@ -79,7 +80,8 @@ def sensor_line(x: SensorStatus) -> str:
     return (
         f"{x.vehicle}/{x.sensor}  seq={'-' if x.last_seq is None else x.last_seq}"
         f"  stamp={_stamp(x.last_stamp_ns)}  rate={x.rate_hz:.1f}/s  frames={x.frames}"
-        f"  resets={x.resets}  tracks={x.active_tracks}  idle={x.idle_s:.1f}s"
+        f"  resets={x.resets}  implausible={x.implausible_frames}  tracks={x.active_tracks}"
+        f"  idle={x.idle_s:.1f}s"
     )
 
 

@@ -301,6 +301,7 @@ class SensorRegistry:
                 idle_s=round(now - s.last_seen, 3),
                 rate_hz=round(s.rate_hz(now), 2),
                 resets=s.resets,
+                implausible_frames=s.implausible,
             )
             for s in list(self.sensors.values())
         ]

@@ -83,6 +83,7 @@ class SensorState:
     checkpoint_mark: tuple[str, int] | None = None
     _undo: _Undo | None = None
     resets: int = 0  # on this instance (the status's, not kept in snapshots)
+    implausible: int = 0  # frames tracked with a plausibility warning, on this instance
     tracked_at: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_FRAMES))
 
     @property

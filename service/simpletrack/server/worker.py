@@ -329,8 +329,7 @@ class Worker(threading.Thread):
             self._refuse(item, vehicle, sensor, state, r)
             return
         # Before the ordering rules: a stamp in seconds explains the refusals that follow.
-        if not self._quiet:  # the member before this one counted and logged it
-            self._plausible(vehicle, sensor, seq, decoded, item)
+        flagged = not self._quiet and self._plausible(vehicle, sensor, seq, decoded, item)
 
         arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
         bridged = False
@@ -365,6 +364,8 @@ class Worker(threading.Thread):
                     seq=seq,
                     gap_s=round((stamp_ns - (state.last_stamp_ns or stamp_ns)) * 1e-9, 3),
                 )
+        if flagged:
+            state.implausible += 1
 
         stamp = state.tracker_stamp(stamp_ns)
         state.last_seen = time.monotonic()
@@ -427,9 +428,10 @@ class Worker(threading.Thread):
 
     def _plausible(
         self, vehicle: str, sensor: str, seq: int, decoded: DecodedDetections, item: Inbound
-    ) -> None:
+    ) -> bool:
         """Count (and log once per sensor and cause) what looks like a unit or convention
-        mistake; the frame is tracked all the same."""
+        mistake; the frame is tracked all the same. False for the member before this one
+        counted and logged it (a replay at a takeover). True when something was found."""
         frame = decoded.frame
         found = check_frame(
             decoded.boxes,
@@ -442,6 +444,7 @@ class Worker(threading.Thread):
         )
         if found:
             self._warn(vehicle, sensor, seq, found)
+        return bool(found)
 
     def _warn(self, vehicle: str, sensor: str, seq: int, found: list[Finding]) -> None:
         key = f"{vehicle}/{sensor}"

@@ -21,6 +21,8 @@ pub struct SensorStatus {
     pub rate_hz: f64,
     /// Tracker resets (gap, time_backwards, restart, non_finite) on this instance.
     pub resets: u64,
+    /// Frames tracked with a plausibility warning (units, conventions) on this instance.
+    pub implausible_frames: u64,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -58,6 +60,7 @@ fn sensor_status(v: &V<'_>) -> Checked<SensorStatus> {
         idle_s: f.required("idle_s", number)?,
         rate_hz: f.optional("rate_hz", 0.0, number)?,
         resets: f.optional("resets", 0, int64)?,
+        implausible_frames: f.optional("implausible_frames", 0, int64)?,
     };
     f.finish()?;
     Ok(s)

@@ -20,8 +20,8 @@ from typing import Any
 
 import msgpack
 
-from simpletrack.cli.mcap_format import SCHEMA_NAMES, schema_data
-from simpletrack.cli.mcap_scene import SceneConverter
+from simpletrack.mcap.format import SCHEMA_NAMES, schema_data
+from simpletrack.mcap.scene import SceneConverter
 from simpletrack.wire.header import MAX_BYTES
 from simpletrack.wire.keys import ERRORS
 
@@ -46,7 +46,7 @@ class Derived:
 def foxglove_schema(name: str) -> bytes:
     """The JSON Schema text a Foxglove channel is described by, by schema name."""
     if name in (SCENE_SCHEMA, TF_SCHEMA):
-        file = importlib.resources.files("simpletrack.cli") / "foxglove"
+        file = importlib.resources.files("simpletrack.mcap") / "foxglove_schemas"
         return (file / f"{name.removeprefix('foxglove.')}.json").read_bytes()
     leaf = next(leaf for leaf, model in SCHEMA_NAMES.items() if model == name)
     return json.dumps(flatten(json.loads(schema_data(leaf))), indent=2).encode()
