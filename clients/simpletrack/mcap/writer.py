@@ -4,6 +4,7 @@ shows (foxglove.py). Used by ``simpletrack record --format mcap`` and ``simpletr
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from pathlib import Path
@@ -28,9 +29,16 @@ from simpletrack.wire.header import peek_header
 _UINT32 = 1 << 32
 
 
+QUEUE_SAMPLES = 10_000  # samples waiting for the writer: ~1 min of a 30-sensor fleet at 10 Hz
+
+
 class McapRecorder:
-    """Writes samples as they arrive (from Zenoh's threads, hence the lock); channels and
-    schemas are registered on a topic's first message. ``messages`` counts the raw samples."""
+    """Zenoh's callback only queues the sample (received time, key, payload); one writer
+    thread converts (the Foxglove twins cost ~3 ms for a 100-box frame) and writes, so a
+    slow disk or a big frame never holds Zenoh's thread. Channels and schemas are registered
+    on a topic's first message. ``messages`` counts the raw samples written; ``unrecorded``
+    those refused because the writer was ``QUEUE_SAMPLES`` behind, or that it could not
+    write (said in the summary: never a silent loss)."""
 
     def __init__(self, path: Path, prefix: str, foxglove: bool = True) -> None:
         self._file: BinaryIO = open(path, "wb")  # noqa: SIM115 (closed in close())
@@ -52,7 +60,11 @@ class McapRecorder:
         self._channels: dict[str, int] = {}
         self._closed = False
         self.messages = 0
+        self.unrecorded = 0
         self.last_ns: int | None = None
+        self._queue: queue.Queue[tuple[int, str, bytes] | None] = queue.Queue(QUEUE_SAMPLES)
+        self._thread = threading.Thread(target=self._write_loop, name="mcap-writer", daemon=True)
+        self._thread.start()
 
     def _channel(self, topic: str, encoding: str, name: str, data: bytes) -> int:
         channel = self._channels.get(topic)
@@ -72,44 +84,58 @@ class McapRecorder:
         return self._channel(d.topic, JSON_ENCODING, d.schema, foxglove_schema(d.schema))
 
     def on_sample(self, sample: zenoh.Sample) -> None:
-        received = time.time_ns()
-        key = str(sample.key_expr)
+        item = (time.time_ns(), str(sample.key_expr), sample.payload.to_bytes())
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self.unrecorded += 1
+        else:
+            self.last_ns = item[0]
+
+    def _write_loop(self) -> None:
+        while (item := self._queue.get()) is not None:
+            try:
+                self._write(*item)
+            except Exception:  # one bad sample must not end the recording
+                with self._lock:
+                    self.unrecorded += 1
+
+    def _write(self, received: int, key: str, payload: bytes) -> None:
         parts = split_key(key)
         if parts is None:
             return
-        payload = sample.payload.to_bytes()
         seq, stamp = peek_header(payload)
         publish = received if stamp is None else stamp
         # MCAP's sequence is 32 bits: wire seqs past that wrap.
         sequence = 0 if seq is None else seq % _UINT32
-        with self._lock:
-            if self._closed:
-                return
-            # Under the lock: the scene converter keeps per-sensor state.
-            derived = (
-                self._foxglove.derive(key, parts[3], parts[1], parts[2], payload)
-                if self._foxglove is not None
-                else []
+        derived = (
+            self._foxglove.derive(key, parts[3], parts[1], parts[2], payload)
+            if self._foxglove is not None
+            else []
+        )
+        channels = [(self._raw_channel(key, parts[3]), payload)]
+        channels += [(self._derived_channel(d), d.data) for d in derived]
+        for channel, data in channels:
+            self._writer.add_message(
+                channel, log_time=received, data=data, publish_time=publish, sequence=sequence
             )
-            channels = [(self._raw_channel(key, parts[3]), payload)]
-            channels += [(self._derived_channel(d), d.data) for d in derived]
-            for channel, data in channels:
-                self._writer.add_message(
-                    channel, log_time=received, data=data, publish_time=publish, sequence=sequence
-                )
+        with self._lock:
             self.messages += 1
-            self.last_ns = received
 
     def close(self) -> None:
-        """Writes the summary: the file is complete and indexed."""
+        """Writes what is queued, then the summary: the file is complete and indexed. Samples
+        that arrive after this are not recorded."""
         with self._lock:
             if self._closed:
                 return
             self._closed = True
-            try:
-                self._writer.finish()  # type: ignore[no-untyped-call]
-            finally:
-                self._file.close()
+        self._queue.put(None)  # after everything queued so far
+        self._thread.join()
+        try:
+            self._writer.finish()  # type: ignore[no-untyped-call]
+        finally:
+            self._file.close()
 
 
 def subscribe(

@@ -262,8 +262,10 @@ def run_mcap(args: argparse.Namespace) -> int:
         for s, handler in previous.items():
             signal.signal(s, handler)
     messages = recorder.messages if recorder is not None else 0
+    unrecorded = recorder.unrecorded if recorder is not None else 0
     print(
         f"record: {reason}: {messages} messages in {time.monotonic() - started:.1f} s to {args.out}"
+        + (f"; {unrecorded} not recorded (the writer fell behind)" if unrecorded else "")
     )
     return 0
 
