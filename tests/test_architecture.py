@@ -166,6 +166,16 @@ def _loaded_after(statement: str) -> set[str]:
             "import simpletrack.view",
             {"scipy", "pydantic", "simpletrack.core", "simpletrack.server"},
         ),
+        # The assignment solvers load on first use (core/solvers.py): every command's start
+        # paid ~0.25 s for scipy.optimize before.
+        (
+            "from simpletrack.cli.main import build_parser; build_parser()",
+            {"scipy.optimize", "scipy.sparse.csgraph"},
+        ),
+        (
+            "import simpletrack.core; simpletrack.core.Tracker",
+            {"scipy.optimize", "scipy.sparse.csgraph"},
+        ),
     ],
 )
 def test_light_imports_stay_light(statement: str, absent: set[str]) -> None:

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
 from simpletrack.core.config import TrackerConfig, preset
 from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.solvers import linear_sum_assignment
 from simpletrack.core.tracker import Tracker
 from simpletrack.datasets.kitti import (
     FRAME_PERIOD,

@@ -29,10 +29,10 @@ from enum import StrEnum
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
 from simpletrack.core.boxes import Boxes
 from simpletrack.core.geometry import iou_3d
+from simpletrack.core.solvers import linear_sum_assignment
 
 F64 = npt.NDArray[np.float64]
 

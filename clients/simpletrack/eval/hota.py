@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
+from simpletrack.core.solvers import linear_sum_assignment
 from simpletrack.eval.kitti_data import Problem
 
 F64 = npt.NDArray[np.float64]

@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from simpletrack.core.solvers import linear_sum_assignment
 from simpletrack.eval.hota import Boxes, id_links
 from simpletrack.eval.kitti_data import IOU_THRESHOLD
 

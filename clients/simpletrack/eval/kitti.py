@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
+from simpletrack.core.solvers import linear_sum_assignment
 from simpletrack.eval.hota import hota_figures, kitti_boxes
 from simpletrack.eval.identity import identity_counts
 from simpletrack.eval.kitti_data import Problem, build_problem

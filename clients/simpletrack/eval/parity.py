@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+
+from simpletrack.core.solvers import linear_sum_assignment
 
 Key = tuple[str, str, int]  # scene, class, frame
 

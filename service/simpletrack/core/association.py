@@ -6,12 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from simpletrack.core.boxes import F64
 from simpletrack.core.config import Matcher
+from simpletrack.core.solvers import linear_sum_assignment, min_weight_full_bipartite_matching
 
 I64 = npt.NDArray[np.int64]
 
@@ -129,6 +127,8 @@ def sparse_hungarian(
     half = far_cost / 2 + 1.0
     size = n + m
     ar, ac = np.arange(n, dtype=np.int64), np.arange(m, dtype=np.int64)
+    from scipy.sparse import coo_matrix  # with the solver: not imported unless it runs
+
     graph = coo_matrix(
         (
             np.concatenate([d + 1.0, np.full(n, half), np.full(m, half), np.ones(r.size)]),

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
 from simpletrack.core.boxes import F64
+from simpletrack.core.solvers import linear_sum_assignment
 
 I64 = npt.NDArray[np.int64]
 I32 = npt.NDArray[np.int32]

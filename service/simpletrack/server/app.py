@@ -22,6 +22,7 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
+from simpletrack.core import solvers
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.custody import Heard, Shared
 from simpletrack.server.group import Membership, Role, undeclare
@@ -105,6 +106,7 @@ class Service:
         if s.state_dir is not None:
             s.state_dir.mkdir(parents=True, exist_ok=True)
             self._writer = SnapshotWriter()
+        solvers.preload()  # the first frame of an optimal matcher must not pay the import
         digest = config_digest(self.config)
         self._shared = shared = Shared(
             membership=self.membership,
