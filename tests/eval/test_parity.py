@@ -15,9 +15,9 @@ from typing import Any
 
 import pytest
 
-from simpletrack.cli.track import track_scene
 from simpletrack.core.config import TieOrder, VerticalOverlap, preset
 from simpletrack.eval.parity import compare, group_rows
+from simpletrack.eval.track_nuscenes import track_scene
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 DETS = DATA / "nuscenes" / "centerpoint_val"

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from simpletrack.cli.track import track_scene
 from simpletrack.core.config import TieOrder, VerticalOverlap, preset
+from simpletrack.eval.track_nuscenes import track_scene
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 DETS = DATA / "nuscenes" / "centerpoint_val"

@@ -10,16 +10,11 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from simpletrack.cli.errors import UserError
-from simpletrack.core.config import TieOrder, TrackerConfig, VerticalOverlap, preset
-from simpletrack.core.frames import Frame, Tracks
-from simpletrack.core.tracker import Tracker
-from simpletrack.datasets.nuscenes import read_scene, scene_files
+from simpletrack.core.config import TieOrder, VerticalOverlap, preset
+from simpletrack.datasets.nuscenes import scene_files
 from simpletrack.eval.parity import compare, group_rows
-from simpletrack.wire.convert import wire_states
-from simpletrack.wire.reasons import WireTrackState
+from simpletrack.eval.track_nuscenes import track_scene
 
 EPILOG = """examples:
   simpletrack track nuscenes --data ../shared/data/nuscenes/centerpoint_val --out out/nusc.jsonl
@@ -54,62 +49,6 @@ def register(sub: Any) -> None:
         "--reference", type=Path, help="reference JSON lines (.gz ok): print parity against it"
     )
     p.set_defaults(func=run)
-
-
-STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
-
-
-def track_scene(
-    path: Path, config: TrackerConfig, *, per_class: bool = False
-) -> Iterator[dict[str, Any]]:
-    """The reference's output: ids per scene and class from 0. Classes never interact in the
-    tracker (class-aware NMS, same-class pairs only, per-class life cycles), so one tracker
-    for all classes gives the per-class trackers' tracks, in the same order within a class;
-    its ids are numbered per class in the order of birth, as the per-class trackers number
-    them (tests/eval/test_track_nuscenes.py proves the rows equal). ``per_class`` runs one
-    tracker per class, as the reference does (a third of the speed)."""
-    scene = path.stem
-    names = list(config.class_names)
-    frames = read_scene(path, names)
-    if per_class:
-        trackers = [Tracker(config) for _ in names]
-        for fr in frames:
-            for code, tracker in enumerate(trackers):
-                only = Frame(boxes=fr.boxes.take(fr.boxes.cls == code), stamp=fr.stamp)
-                tracks = tracker.step(only)
-                order = list(range(len(tracks)))
-                yield from _rows(scene, fr.index, names, tracks, order, tracks.ids.tolist())
-        return
-    tracker = Tracker(config)
-    local: list[dict[int, int]] = [{} for _ in names]  # per class: tracker id -> class id
-    for fr in frames:
-        tracks = tracker.step(Frame(boxes=fr.boxes, stamp=fr.stamp))
-        order = np.argsort(tracks.boxes.cls, kind="stable").tolist()
-        codes, raw = tracks.boxes.cls.tolist(), tracks.ids.tolist()
-        ids = [local[codes[i]].setdefault(raw[i], len(local[codes[i]])) for i in order]
-        yield from _rows(scene, fr.index, names, tracks, order, ids)
-
-
-def _rows(
-    scene: str, frame: int, names: list[str], tracks: Tracks, order: list[int], ids: list[int]
-) -> Iterator[dict[str, Any]]:
-    """The rows of ``tracks`` in ``order``, the k-th with id ``ids[k]``."""
-    box = tracks.boxes.params
-    states = wire_states(tracks).tolist()
-    codes = tracks.boxes.cls.tolist()
-    for k, i in enumerate(order):
-        b = box[i]
-        yield {
-            "scene": scene,
-            "frame": frame,
-            "cls": names[codes[i]],
-            "id": ids[k],
-            "box": [round(float(v), 2) for v in b[:3]]
-            + [round(float(b[3]), 4)]
-            + [round(float(v), 2) for v in b[4:]],
-            "score": round(float(tracks.boxes.score[i]), 4),
-            "state": STATE_NAMES[states[i]],
-        }
 
 
 def _read_jsonl(path: Path, scenes: set[str]) -> Iterator[dict[str, Any]]:
