@@ -322,6 +322,7 @@ PER_VEHICLE = (
     "simpletrack_frames_tracked_total",
     "simpletrack_frames_rejected_total",
     "simpletrack_frames_dropped_total",
+    "simpletrack_implausible_frames_total",
 )
 
 
