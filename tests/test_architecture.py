@@ -16,9 +16,12 @@ SOURCES = [ROOT / "service", ROOT / "schemas", ROOT / "clients"]
 
 # What the pure core may import: numerics, serialisation, validation, and plain stdlib.
 CORE_ALLOWED = {
-    "numpy", "scipy", "msgpack", "pydantic",
-    "__future__", "dataclasses", "enum", "typing", "collections", "functools", "hashlib",
+    "numpy", "scipy", "numba", "msgpack", "pydantic",
+    "__future__", "dataclasses", "enum", "typing", "collections", "functools", "hashlib", "math",
+    "os", "threading", "types", "warnings", "importlib",
 }  # fmt: skip
+# Only the kernel compiler may import numba, and read the environment (SIMPLETRACK_JIT).
+CORE_ONLY_IN = {"numba": "jit.py", "os": "jit.py", "importlib": "jit.py"}
 
 # Layer -> the simpletrack layers it may import (itself always). Tools may import anything
 # below the CLI; nothing below the tools may import a tool.
@@ -118,6 +121,17 @@ def test_the_core_is_pure() -> None:
     assert not bad, bad
 
 
+def test_only_the_kernel_compiler_imports_numba_and_os() -> None:
+    core = ROOT / "service" / "simpletrack" / "core"
+    bad = [
+        f"{p.relative_to(ROOT)}: {m}"
+        for p in sorted(core.rglob("*.py"))
+        for m in _imports(p)
+        if CORE_ONLY_IN.get(m.split(".")[0], p.name) != p.name
+    ]
+    assert not bad, bad
+
+
 def test_the_cli_registers_every_command_module() -> None:
     cli = ROOT / "service" / "simpletrack" / "cli"
     registered = {
@@ -176,6 +190,10 @@ def _loaded_after(statement: str) -> set[str]:
             "import simpletrack.core; simpletrack.core.Tracker",
             {"scipy.optimize", "scipy.sparse.csgraph"},
         ),
+        # Kernels compile on first call (core/jit.py): importing numba costs ~0.2-0.4 s.
+        ("import simpletrack.core; simpletrack.core.Tracker", {"numba", "llvmlite"}),
+        ("import simpletrack.core.geometry, simpletrack.core.nms", {"numba", "llvmlite"}),
+        ("from simpletrack.cli.main import build_parser; build_parser()", {"numba"}),
     ],
 )
 def test_light_imports_stay_light(statement: str, absent: set[str]) -> None:

@@ -1,19 +1,10 @@
-"""Vectorised box geometry: BEV intersection and hull areas, IoU/GIoU, centre and Mahalanobis distances.
+"""Box geometry: BEV intersection and hull areas, IoU/GIoU, centre and Mahalanobis distances.
 
 Every pairwise function takes ``a`` (N, 7) and ``b`` (M, 7) box parameters (x, y, z, yaw, l, w, h)
-and returns a float64 (N, M) matrix. Each pair is solved in box a's own frame (a centred at the
-origin and axis-aligned): coordinates stay small even kilometres from the world origin, and a's
-four half-planes become the two slabs |x| <= l/2 and |y| <= w/2.
-
-Both areas are exact up to rounding (no tolerances, no sorting, fixed-size arrays):
-- Intersection: b's outline clipped by a's two slabs. Each edge keeps three slots (its start, and
-  the ends of its part inside the slab), clamped into the slab: an outside run then becomes
-  a detour along the slab's boundary line, which encloses no area, so the shoelace formula over
-  the fixed slots gives the clipped area. Only pairs whose circumscribed circles meet are clipped.
-- Hull: the hull's support function is the max of both boxes' support functions h_a, h_b. Listing
-  the hull's vertices as the winners at every edge normal n of either box and summing the shoelace
-  terms collapses to a closed form:
-      area(hull) = area(b) + sum over the 8 edges e of both boxes of |e|/2 * max(0, h_a(n_e) - h_b(n_e)).
+and returns a float64 (N, M) matrix, or values for listed pairs. The overlap measures are
+computed pair by pair by the compiled kernels of core/overlap_kernels.py (its docstring has the
+arithmetic: slab clipping with fixed slots and the shoelace formula for the intersection, a
+closed form for the hull); this module validates the arguments and gates large frames.
 """
 
 from __future__ import annotations
@@ -21,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.boxes import YAW, H, L, W, X, Y, Z
+from simpletrack.core import overlap_kernels as kernels
+from simpletrack.core.boxes import YAW, L, W, X, Y, Z
 from simpletrack.core.config import Metric, VerticalOverlap
 from simpletrack.core.gate import circumradius, grid_pairs, overlap_keep
 
@@ -47,10 +39,8 @@ __all__ = [
 # Pairs per vectorised batch: bounds temporaries (tens of MB) whatever N x M is, while keeping
 # the per-batch Python overhead negligible.
 _CHUNK = 1 << 15
-# The reference code's iou3d divides by (U + 1e-5); reproduced in REFERENCE mode only.
-_REFERENCE_EPS = 1e-5
-# Circle gate margin: pairs just outside it would clip to zero area anyway.
-_GATE_SLACK = 1e-9
+# The overlap gate's margin, shared with the kernels' own circle test.
+_GATE_SLACK = kernels.GATE_SLACK
 
 # Corner signs, counter-clockwise from front-left (+l/2, +w/2).
 _SX = np.array([1.0, -1.0, -1.0, 1.0])
@@ -58,7 +48,8 @@ _SY = np.array([1.0, 1.0, -1.0, -1.0])
 
 
 def _params(p: npt.ArrayLike, name: str) -> F64:
-    arr = np.asarray(p, dtype=np.float64)
+    # C order: the kernels are compiled for contiguous rows.
+    arr = np.ascontiguousarray(p, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 7:
         raise ValueError(f"{name} must be (N, 7) box parameters, got shape {arr.shape}")
     return arr
@@ -73,115 +64,6 @@ def bev_corners(params: npt.ArrayLike) -> F64:
     x = p[:, X, None] + c * lx - s * ly
     y = p[:, Y, None] + s * lx + c * ly
     return np.stack([x, y], axis=2)
-
-
-def _relative(a: F64, b: F64, *, exact_yaw: bool) -> tuple[F64, F64, F64, F64]:
-    """b's centre (dx, dy) and heading (cos, sin) in a's frame, for row-aligned or broadcast
-    (..., 7) parameter arrays.
-
-    ``exact_yaw`` takes cos/sin of the yaw difference (exactly 1, 0 for equal yaws); otherwise
-    product formulas of per-box cos/sin, which avoid trig over all N x M pairs.
-    """
-    ca, sa = np.cos(a[..., YAW]), np.sin(a[..., YAW])
-    dxw = b[..., X] - a[..., X]
-    dyw = b[..., Y] - a[..., Y]
-    if exact_yaw:
-        dyaw = b[..., YAW] - a[..., YAW]
-        c, s = np.cos(dyaw), np.sin(dyaw)
-    else:
-        cb, sb = np.cos(b[..., YAW]), np.sin(b[..., YAW])
-        c, s = cb * ca + sb * sa, sb * ca - cb * sa
-    return ca * dxw + sa * dyw, ca * dyw - sa * dxw, c, s
-
-
-def _clip_slab(pts: F64, h: F64) -> F64:
-    """Clip closed outlines ``pts`` (2, n, P) (coordinates u, v) to the slab |u| <= h (P,).
-
-    Returns (2, 3n, P): per edge its start, then the ends of its part inside the slab (Liang-Barsky
-    parameters clamped to [0, 1]), all with u clamped into the slab. Points of an outside run land
-    on the slab's boundary line, where any back-and-forth encloses no area.
-    """
-    n, p = pts.shape[1], pts.shape[2]
-    out = np.empty((2, n, 3, p))
-    out[:, :, 0] = pts
-    d = pts[:, _NEXT_OF[n]] - pts
-    u, du = pts[0], d[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / du
-        t_lo = (-h - u) * inv
-        t_hi = (h - u) * inv
-    t = np.empty((n, 2, p))
-    # fmin / fmax skip the NaN of 0 * inf (an edge lying along a boundary line).
-    np.fmin(t_lo, t_hi, out=t[:, 0])
-    np.fmax(t_lo, t_hi, out=t[:, 1])
-    np.fmin(t, 1.0, out=t)
-    np.fmax(t, 0.0, out=t)
-    ends = out[:, :, 1:]
-    np.multiply(t, d[:, :, None], out=ends)
-    ends += pts[:, :, None]
-    flat = out.reshape(2, 3 * n, p)
-    np.maximum(flat[0], -h, out=flat[0])
-    np.minimum(flat[0], h, out=flat[0])
-    return flat
-
-
-# Cyclic successor index for outlines of 4, 12 and 36 points.
-_NEXT_OF = {n: np.roll(np.arange(n), -1) for n in (4, 12, 36)}
-
-
-def _shoelace(x: F64, y: F64) -> F64:
-    """Signed areas of closed outlines (n, P), positive when counter-clockwise."""
-    twice = np.sum(x[:-1] * y[1:] - x[1:] * y[:-1], axis=0)
-    twice += x[-1] * y[0] - x[0] * y[-1]
-    return np.asarray(0.5 * twice, dtype=np.float64)
-
-
-def _intersection(a: F64, b: F64) -> F64:
-    """BEV intersection areas of row-aligned boxes a, b (P, 7)."""
-    dx, dy, c, s = _relative(a, b, exact_yaw=True)
-    hl, hw = b[:, L] / 2, b[:, W] / 2
-    ex, ey, fx, fy = c * hl, s * hl, -s * hw, c * hw
-    sx, sy = _SX[:, None], _SY[:, None]
-    pts = np.stack([dx + sx * ex + sy * fx, dy + sx * ey + sy * fy])  # b's corners (2, 4, P)
-    pts = _clip_slab(pts, a[:, L] / 2)
-    pts = _clip_slab(pts[::-1], a[:, W] / 2)[::-1]
-    return _shoelace(pts[0], pts[1])
-
-
-def _hull(a: F64, b: F64) -> F64:
-    """BEV convex hull areas of broadcastable box arrays a, b (..., 7); see the module doc."""
-    dx, dy, c, s = _relative(a, b, exact_yaw=False)
-    ha, wa, hl, hw = a[..., L] / 2, a[..., W] / 2, b[..., L] / 2, b[..., W] / 2
-    du, dv = np.abs(dx * c + dy * s), np.abs(dy * c - dx * s)  # b's centre along b's axes
-    c, s, dx, dy = np.abs(c), np.abs(s), np.abs(dx), np.abs(dy)
-    # Margins h_a - h_b along each edge normal, both boxes about their own centres: along a's
-    # x and y, then along b's axis u and across it v. The centre offset d (>= 0) adds -d on one
-    # side and +d on the other, and max(0, m - d) + max(0, m + d) = max(0, m + max(m, d)).
-    mx = ha - (c * hl + s * hw)
-    my = wa - (s * hl + c * hw)
-    mu = ha * c + wa * s - hl
-    mv = ha * s + wa * c - hw
-    # Edge lengths: a's x normals 2 wa, y normals 2 ha; b's u normals 2 hw, v normals 2 hl.
-    area = wa * np.maximum(mx + np.maximum(mx, dx), 0.0)
-    area += ha * np.maximum(my + np.maximum(my, dy), 0.0)
-    area += hw * np.maximum(mu + np.maximum(mu, du), 0.0)
-    area += hl * np.maximum(mv + np.maximum(mv, dv), 0.0)
-    area += 4.0 * hl * hw
-    return np.asarray(area, dtype=np.float64)
-
-
-def _hull_matrix(a: F64, b: F64) -> F64:
-    """(N, M) hull areas, broadcasting over row blocks of a to bound temporaries."""
-    n, m = a.shape[0], b.shape[0]
-    out = np.empty((n, m))
-    rows = max(1, _CHUNK // max(m, 1))
-    for r0 in range(0, n, rows):
-        out[r0 : r0 + rows] = _hull(a[r0 : r0 + rows, None, :], b[None, :, :])
-    return out
-
-
-def _areas(p: F64) -> F64:
-    return np.asarray(p[:, L] * p[:, W], dtype=np.float64)
 
 
 def _gate_all_pairs(pa: F64, pb: F64, ga: I64 | None, gb: I64 | None) -> tuple[I64, I64]:
@@ -218,79 +100,14 @@ def _gate(pa: F64, pb: F64, ga: I64 | None, gb: I64 | None) -> tuple[I64, I64]:
     return grid_pairs(pa[:, X : Y + 1], ga, pb[:, X : Y + 1], gb, cell, keep)
 
 
-def _gated_intersection(
-    pa: F64, pb: F64, ga: I64 | None = None, gb: I64 | None = None
-) -> tuple[I64, I64, F64]:
-    """The gated pairs (see _gate) and their BEV intersection areas."""
-    ia, ib = _gate(pa, pb, ga, gb)
-    area = np.empty(ia.size)
-    for start in range(0, ia.size, _CHUNK):
-        i, j = ia[start : start + _CHUNK], ib[start : start + _CHUNK]
-        area[start : start + i.size] = _intersection(pa[i], pb[j])
-    return ia, ib, np.clip(area, 0.0, np.minimum(_areas(pa)[ia], _areas(pb)[ib]))
-
-
 def bev_intersection_area(a: npt.ArrayLike, b: npt.ArrayLike) -> F64:
     """(N, M) areas of the BEV footprints' intersections."""
-    pa, pb = _params(a, "a"), _params(b, "b")
-    out = np.zeros((pa.shape[0], pb.shape[0]))
-    ia, ib, area = _gated_intersection(pa, pb)
-    out[ia, ib] = area
-    return out
+    return kernels.intersection_matrix(_params(a, "a"), _params(b, "b"))
 
 
 def bev_hull_area(a: npt.ArrayLike, b: npt.ArrayLike) -> F64:
     """(N, M) areas of the convex hulls of each pair's 8 BEV corners."""
-    pa, pb = _params(a, "a"), _params(b, "b")
-    hull = _hull_matrix(pa, pb)
-    return np.maximum(hull, np.maximum(_areas(pa)[:, None], _areas(pb)[None, :]))
-
-
-def _vertical(
-    a: F64, b: F64, mode: VerticalOverlap, ia: I64 | None = None, ib: I64 | None = None
-) -> tuple[F64, F64]:
-    """Vertical overlap and union lengths: (N, M), or (P,) for the pairs (ia, ib)."""
-    top_a, bot_a = a[:, Z] + a[:, H] / 2, a[:, Z] - a[:, H] / 2
-    top_b, bot_b = b[:, Z] + b[:, H] / 2, b[:, Z] - b[:, H] / 2
-    if ia is None or ib is None:
-        top_a, bot_a, top_b, bot_b = top_a[:, None], bot_a[:, None], top_b[None], bot_b[None]
-    else:
-        top_a, bot_a, top_b, bot_b = top_a[ia], bot_a[ia], top_b[ib], bot_b[ib]
-    if mode is VerticalOverlap.EXACT:
-        overlap = np.maximum(0.0, np.minimum(top_a, top_b) - np.maximum(bot_a, bot_b))
-        union = np.maximum(top_a, top_b) - np.minimum(bot_a, bot_b)
-    else:
-        # The reference's formula: wrong when one vertical extent contains the other.
-        ab, ba = top_a - bot_b, top_b - bot_a
-        overlap = np.maximum(0.0, np.minimum(ab, ba))
-        union = np.maximum(ab, ba)
-    return overlap, union
-
-
-def _sparse_iou(
-    pa: F64,
-    pb: F64,
-    ia: I64,
-    ib: I64,
-    inter: F64,
-    *,
-    three_d: bool,
-    vertical: VerticalOverlap,
-    reference_eps: bool,
-) -> tuple[F64, F64, F64, F64]:
-    """IoU on the gated pairs: (iou, union) per pair, and the per-box sizes (areas or volumes).
-
-    ``reference_eps`` divides by (U + 1e-5) as the reference's iou3d does."""
-    size_a, size_b = _areas(pa), _areas(pb)
-    if three_d:
-        inter = inter * _vertical(pa, pb, vertical, ia, ib)[0]
-        size_a, size_b = size_a * pa[:, H], size_b * pb[:, H]
-    union = size_a[ia] + size_b[ib] - inter
-    if reference_eps:
-        iou = inter / (union + _REFERENCE_EPS)
-    else:
-        iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
-    return iou, union, size_a, size_b
+    return kernels.hull_matrix(_params(a, "a"), _params(b, "b"))
 
 
 def _overlap(
@@ -301,38 +118,8 @@ def _overlap(
     generalized: bool,
     vertical: VerticalOverlap,
 ) -> F64:
-    pa, pb = _params(a, "a"), _params(b, "b")
-    n, m = pa.shape[0], pb.shape[0]
-    # Intersections (and so IoU) are non-zero only on the gated pairs: work there sparsely.
-    ia, ib, inter = _gated_intersection(pa, pb)
-    reference_3d = three_d and vertical is VerticalOverlap.REFERENCE
-    iou_g, union_g, size_a, size_b = _sparse_iou(
-        pa,
-        pb,
-        ia,
-        ib,
-        inter,
-        three_d=three_d,
-        vertical=vertical,
-        reference_eps=reference_3d and not generalized,
-    )
-    if not generalized:
-        out = np.zeros((n, m))
-        out[ia, ib] = iou_g
-        return out
-    # GIoU = I/U - (C - U)/C = I/U + U/C - 1 on every pair.
-    enclosing = _hull_matrix(pa, pb)
-    if three_d:
-        enclosing *= _vertical(pa, pb, vertical)[1]
-    union = size_a[:, None] + size_b[None, :]
-    union[ia, ib] = union_g
-    if not reference_3d:
-        # The hull contains the union; rounding must not push GIoU above IoU.
-        np.maximum(enclosing, union, out=enclosing)
-    giou = np.divide(union, enclosing, out=np.ones_like(union), where=enclosing > 0)
-    giou -= 1.0
-    giou[ia, ib] += iou_g
-    return giou
+    exact = vertical is VerticalOverlap.EXACT
+    return kernels.overlap_matrix(_params(a, "a"), _params(b, "b"), three_d, generalized, exact)
 
 
 def iou_3d_pairs(
@@ -355,18 +142,9 @@ def iou_3d_pairs(
         raise ValueError(
             f"group labels {ga.size}, {gb.size} != box counts {pa.shape[0]}, {pb.shape[0]}"
         )
-    ia, ib, inter = _gated_intersection(pa, pb, ga, gb)
-    iou = _sparse_iou(
-        pa,
-        pb,
-        ia,
-        ib,
-        inter,
-        three_d=True,
-        vertical=vertical,
-        reference_eps=vertical is VerticalOverlap.REFERENCE,
-    )[0]
-    return ia, ib, iou
+    ia, ib = _gate(pa, pb, ga, gb)
+    exact = vertical is VerticalOverlap.EXACT
+    return ia, ib, kernels.overlap_pairs(pa, pb, ia, ib, True, False, exact)
 
 
 def iou_bev(
@@ -449,47 +227,12 @@ def distance_matrix(
     return np.asarray(1.0 - overlap(dets, preds, vertical=vertical), dtype=np.float64)
 
 
-def _overlap_pairs(
-    pa: F64,
-    pb: F64,
-    ia: I64,
-    ib: I64,
-    *,
-    three_d: bool,
-    generalized: bool,
-    vertical: VerticalOverlap,
-) -> F64:
-    """IoU or GIoU of the listed pairs only: the same arithmetic as ``_overlap`` per element."""
-    a, b = pa[ia], pb[ib]
-    reach = (np.hypot(a[:, L], a[:, W]) + np.hypot(b[:, L], b[:, W])) / 2
-    d2 = np.square(a[:, X] - b[:, X]) + np.square(a[:, Y] - b[:, Y])
-    near = np.flatnonzero(d2 <= reach * reach * (1.0 + _GATE_SLACK))
-    inter = np.zeros(ia.size)
-    if near.size:
-        area = _intersection(a[near], b[near])
-        inter[near] = np.clip(area, 0.0, np.minimum(_areas(a[near]), _areas(b[near])))
-    size_a, size_b = _areas(a), _areas(b)
-    overlap_h, union_h = _vertical(pa, pb, vertical, ia, ib) if three_d else (None, None)
-    if three_d and overlap_h is not None:
-        inter = inter * overlap_h
-        size_a, size_b = size_a * a[:, H], size_b * b[:, H]
-    union = size_a + size_b - inter
-    reference_3d = three_d and vertical is VerticalOverlap.REFERENCE
-    if reference_3d and not generalized:
-        return np.asarray(inter / (union + _REFERENCE_EPS), dtype=np.float64)
-    iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
-    if not generalized:
-        return iou
-    enclosing = _hull(a, b)
-    if three_d and union_h is not None:
-        enclosing = enclosing * union_h
-    if not reference_3d:
-        np.maximum(enclosing, union, out=enclosing)
-    giou = np.divide(union, enclosing, out=np.ones_like(union), where=enclosing > 0)
-    giou -= 1.0
-    # Pairs that cannot intersect have IoU exactly 0, as in the dense path.
-    giou[near] += iou[near]
-    return giou
+def _checked(index: I64, n: int, side: str) -> I64:
+    """``index`` with numpy's negative indices resolved; IndexError outside -n..n-1."""
+    lo, hi = int(index.min()), int(index.max())
+    if lo < -n or hi >= n:
+        raise IndexError(f"{side} index {lo if lo < -n else hi} is out of bounds for size {n}")
+    return index if lo >= 0 else np.where(index < 0, index + n, index)
 
 
 def distance_pairs(
@@ -506,12 +249,14 @@ def distance_pairs(
     without computing the rest (e.g. only same-class pairs, all classes in one call)."""
     metric = Metric(metric)
     pa, pb = _params(dets, "dets"), _params(preds, "preds")
-    ia = np.asarray(det_index, dtype=np.int64).reshape(-1)
-    ib = np.asarray(pred_index, dtype=np.int64).reshape(-1)
+    ia = np.ascontiguousarray(det_index, dtype=np.int64).reshape(-1)
+    ib = np.ascontiguousarray(pred_index, dtype=np.int64).reshape(-1)
     if ia.size != ib.size:
         raise ValueError(f"{ia.size} det indices but {ib.size} pred indices")
     if ia.size == 0:
         return np.zeros(0)
+    # Compiled kernels do not check bounds: a bad index must fail here, not read memory.
+    ia, ib = _checked(ia, pa.shape[0], "det"), _checked(ib, pb.shape[0], "pred")
     if metric is Metric.L2:
         d = pa[ia, X : Z + 1] - pb[ib, X : Z + 1]
         return np.asarray(np.sqrt(np.einsum("pk,pk->p", d, d)), dtype=np.float64)
@@ -525,7 +270,6 @@ def distance_pairs(
         return np.asarray(np.sqrt(np.maximum(q, 0.0)), dtype=np.float64)
     three_d = metric in (Metric.GIOU_3D, Metric.IOU_3D)
     generalized = metric in (Metric.GIOU_3D, Metric.GIOU_BEV)
-    overlap = _overlap_pairs(
-        pa, pb, ia, ib, three_d=three_d, generalized=generalized, vertical=vertical
-    )
+    exact = vertical is VerticalOverlap.EXACT
+    overlap = kernels.overlap_pairs(pa, pb, ia, ib, three_d, generalized, exact)
     return np.asarray(1.0 - overlap, dtype=np.float64)

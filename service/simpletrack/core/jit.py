@@ -1,0 +1,185 @@
+"""The one way the core compiles kernels: numba ``njit(nogil=True, cache=True)``, on first use.
+
+- ``import numba`` costs ~0.4 s, which ``import simpletrack.core`` (and every command) must not
+  pay: ``@kernel`` returns a small wrapper that imports numba and compiles on its first call.
+  ``preload()`` compiles (or loads from numba's on-disk cache) every kernel now, for a service
+  whose first frame must not wait.
+- ``nogil``: a worker thread running a kernel lets the others run theirs on the other cores.
+  ``cache``: compiled once per machine (numba's cache beside the source, or the user's cache
+  when that is read-only), loaded in milliseconds afterwards.
+- A kernel may call functions marked ``@helper`` (plain Python functions): they are compiled
+  with the kernel, and stay plain Python when the kernel runs uncompiled.
+- Without a working numba, or with ``SIMPLETRACK_JIT=0`` (tests compare both ways), a kernel
+  runs its own Python function: the same arithmetic, slower. A missing or failing numba warns
+  once. This is the only module of the core that reads the environment.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import types
+import warnings
+from collections.abc import Callable
+from typing import Any, Generic, ParamSpec, TypeVar
+
+import numpy as np
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+__all__ = ["Kernel", "compiled", "helper", "inline", "kernel", "preload"]
+
+ENV_VAR = "SIMPLETRACK_JIT"
+# Modules whose kernels preload() compiles: importing them registers their kernels.
+_KERNEL_MODULES = ("simpletrack.core.overlap_kernels",)
+_HELPER_MARK = "__simpletrack_jit_helper__"
+_PLAIN_MARK = "__simpletrack_jit_plain__"
+
+_lock = threading.Lock()
+_kernels: list[Kernel[Any, Any]] = []
+_compiled_helpers: dict[Callable[..., Any], Any] = {}
+_numba: Any = None  # the numba module once imported, False when unavailable or disabled
+
+
+def helper(fn: Callable[P, R]) -> Callable[P, R]:
+    """Mark ``fn`` as callable from kernels: it is compiled along with any kernel calling it."""
+    setattr(fn, _HELPER_MARK, "never")
+    return fn
+
+
+def inline(fn: Callable[P, R]) -> Callable[P, R]:
+    """A ``helper`` that numba inlines into its callers: for tiny functions called per element
+    (a call costs more than their body; inlining big ones multiplies compile time)."""
+    setattr(fn, _HELPER_MARK, "always")
+    return fn
+
+
+class Kernel(Generic[P, R]):
+    """A function compiled by numba on first call; ``.py`` is the uncompiled function."""
+
+    def __init__(self, fn: Callable[P, R], signature: str) -> None:
+        self.py = fn
+        self.signature = signature
+        self.__name__ = fn.__name__
+        self.__doc__ = fn.__doc__
+        self._impl: Callable[P, R] | None = None
+
+    def __call__(self, *args: P.args, **kwargs: P.kwargs) -> R:
+        impl = self._impl or self.load()
+        return impl(*args, **kwargs)
+
+    @property
+    def is_compiled(self) -> bool:
+        return self._impl is not None and not getattr(self._impl, _PLAIN_MARK, False)
+
+    def load(self) -> Callable[P, R]:
+        """Compile now (or load the cached machine code); the Python function if no numba."""
+        with _lock:
+            if self._impl is None:
+                numba = _numba_module()
+                if numba is False:
+                    self._impl = _quiet(self.py)
+                else:
+                    try:
+                        self._impl = numba.njit(self.signature, **_OPTIONS)(_linked(self.py))
+                    except Exception as exc:  # a broken numba or llvmlite: still right, slower
+                        _warn(f"compiling {self.py.__qualname__} failed ({exc!r})")
+                        self._impl = _quiet(self.py)
+            return self._impl
+
+
+# error_model="numpy": float division by zero gives inf/nan as in numpy instead of a check
+# (and ZeroDivisionError) on every division; kernels guard their divisions themselves.
+_OPTIONS: dict[str, Any] = {"nogil": True, "cache": True, "error_model": "numpy"}
+
+
+def _quiet(fn: Callable[P, R]) -> Callable[P, R]:
+    """``fn`` with numpy's floating-point warnings off, as compiled code has none: run as Python,
+    the kernels' numpy scalars warn where IEEE arithmetic is intended (0 * inf in clipping)."""
+
+    def run(*args: P.args, **kwargs: P.kwargs) -> R:
+        with np.errstate(all="ignore"):
+            return fn(*args, **kwargs)
+
+    setattr(run, _PLAIN_MARK, True)
+    return run
+
+
+def kernel(signature: str) -> Callable[[Callable[P, R]], Kernel[P, R]]:
+    """Compile the decorated function lazily, for numba's explicit ``signature`` (one type per
+    argument, so that preload() can compile it without sample arguments)."""
+
+    def wrap(fn: Callable[P, R]) -> Kernel[P, R]:
+        k = Kernel(fn, signature)
+        _kernels.append(k)
+        return k
+
+    return wrap
+
+
+def preload() -> None:
+    """Compile or load every kernel of the core now."""
+    import importlib
+
+    for name in _KERNEL_MODULES:
+        importlib.import_module(name)
+    for k in list(_kernels):
+        k.load()
+
+
+def compiled() -> bool:
+    """Whether kernels run compiled (numba importable and not disabled)."""
+    with _lock:
+        return _numba_module() is not False
+
+
+def _numba_module() -> Any:
+    """numba, imported once; False when disabled or unavailable. Call with _lock held."""
+    global _numba
+    if _numba is None:
+        if os.environ.get(ENV_VAR, "1").strip() == "0":
+            _numba = False
+        else:
+            try:
+                import numba
+
+                _numba = numba
+            except Exception as exc:  # absent, or broken (e.g. numpy newer than it supports)
+                _warn(f"numba is unavailable ({exc!r})")
+                _numba = False
+    return _numba
+
+
+def _warn(why: str) -> None:
+    warnings.warn(
+        f"simpletrack.core: {why}; kernels run as plain Python (same results, much slower)",
+        RuntimeWarning,
+        stacklevel=4,
+    )
+
+
+def _linked(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` with the helpers it names bound to their numba dispatchers (recursively), as a
+    copy: the module keeps the plain functions for uncompiled use. Call with _lock held."""
+    named = {name: fn.__globals__.get(name) for name in fn.__code__.co_names}
+    swaps = {
+        name: _compiled_helper(value)
+        for name, value in named.items()
+        if callable(value) and getattr(value, _HELPER_MARK, False)
+    }
+    if not swaps:
+        return fn
+    copy = types.FunctionType(
+        fn.__code__, {**fn.__globals__, **swaps}, fn.__name__, fn.__defaults__, fn.__closure__
+    )
+    copy.__qualname__ = fn.__qualname__
+    return copy
+
+
+def _compiled_helper(fn: Callable[..., Any]) -> Any:
+    if fn not in _compiled_helpers:
+        # Typed and compiled with the first kernel calling it (or inlined into it).
+        how = getattr(fn, _HELPER_MARK)
+        _compiled_helpers[fn] = _numba.njit(inline=how, **_OPTIONS)(_linked(fn))
+    return _compiled_helpers[fn]
