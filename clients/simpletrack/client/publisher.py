@@ -340,7 +340,10 @@ class DetectionPublisher:
                 self._held.clear()
 
     def wait_for_service(self, timeout: float) -> bool:
-        """True once some subscriber (a service) matches this sensor's detections key."""
+        """True once some subscriber matches this sensor's detections key. Any subscriber
+        counts: a recorder (``simpletrack record``) or ``simpletrack view --detections``
+        already listening makes this true before the service is; start them after the
+        service answers (the demo does), or ask the service's status queryable."""
         deadline = time.monotonic() + timeout
         while True:
             if self.delivering:
