@@ -22,7 +22,7 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
-from simpletrack.core import solvers
+from simpletrack.core import jit, solvers
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.custody import Heard, Shared
 from simpletrack.server.group import Membership, Role, undeclare
@@ -107,6 +107,7 @@ class Service:
             s.state_dir.mkdir(parents=True, exist_ok=True)
             self._writer = SnapshotWriter()
         solvers.preload()  # the first frame of an optimal matcher must not pay the import
+        jit.preload()  # nor the first frame the kernels' compile (cached on disk: ~0.35 s)
         digest = config_digest(self.config)
         self._shared = shared = Shared(
             membership=self.membership,
