@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from simpletrack.wire import columns
+from simpletrack.wire.columns import ColumnSpec
 from simpletrack.wire.fields import (
     Field,
     MapSpec,
@@ -224,35 +226,26 @@ BOX_COLUMNS = MapSpec(
         ),
     ],
 )
-_TRACK_COLUMNS_V1 = (
-    "id",
-    "class_index",
-    "center",
-    "size",
-    "yaw",
-    "score",
-    "velocity",
-    "state",
-    "hits",
-    "age",
-    "time_since_update",
-)
+
+
+def _track_columns(specs: tuple[ColumnSpec, ...]) -> list[Field]:
+    """A TrackFrame version's column fields, from columns.py's layouts (one list of names)."""
+    return _columns(tuple(c.name for c in specs), tuple(c.name for c in specs if c.optional))
+
+
 TRACK_COLUMNS_V1 = MapSpec(
     "TrackColumnsV1",
-    TrackColumns,
-    [Field("count", _count), Field("classes", _classes), *_columns(_TRACK_COLUMNS_V1)],
-)
-TRACK_COLUMNS = MapSpec(
-    "TrackColumns",
     TrackColumns,
     [
         Field("count", _count),
         Field("classes", _classes),
-        *_columns(
-            (*_TRACK_COLUMNS_V1, "covariance", "age_s", "time_since_update_s"),
-            optional=("covariance",),
-        ),
+        *_track_columns(columns.TRACK_COLUMNS_V1),
     ],
+)
+TRACK_COLUMNS = MapSpec(
+    "TrackColumns",
+    TrackColumns,
+    [Field("count", _count), Field("classes", _classes), *_track_columns(columns.TRACK_COLUMNS)],
 )
 DETECTION_FRAME = MapSpec(
     "DetectionFrame",
