@@ -5,12 +5,16 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.boxes import Boxes
+from simpletrack.core.boxes import F64, Boxes
 from simpletrack.core.config import TieOrder, VerticalOverlap
 from simpletrack.core.geometry import iou_3d_pairs
-from simpletrack.core.ordering import descending_reference, descending_stable
+from simpletrack.core.ordering import descending_reference
+from simpletrack.core.pair_kernels import nms_walk as walk_kernel
 
 I64 = npt.NDArray[np.int64]
+# Same-class pairs up to which the compiled walk tests every pair it needs (~1 ms at most);
+# past it the BEV grid lists the few pairs that can overlap.
+_WALK_PAIRS = 1 << 18
 
 
 def drop_degenerate(boxes: Boxes) -> I64:
@@ -44,7 +48,24 @@ def nms(
         raise ValueError(
             f"class codes span {codes[0]}..{codes[-1]} but only {thr.size} NMS thresholds given"
         )
-    # One sparse IoU pass over every same-class pair that can overlap, for all classes at once.
+    if tie_order is TieOrder.STABLE:
+        # Ascending class, then descending score, ties in input order (what descending_stable
+        # gives class by class): lexsort is stable.
+        order = np.lexsort((-boxes.score, cls)).astype(np.int64)
+    else:
+        members = [np.flatnonzero(cls == c) for c in codes]
+        order = np.concatenate([m[descending_reference(boxes.score[m])] for m in members])
+    per_class = np.bincount(cls)
+    exact = vertical is VerticalOverlap.EXACT
+    if int(np.dot(per_class, per_class)) <= _WALK_PAIRS:
+        return walk_kernel(boxes.params, cls.astype(np.int64), order, thr, exact)
+    return _gated_walk(boxes, thr, order, vertical)
+
+
+def _gated_walk(boxes: Boxes, thr: F64, order: I64, vertical: VerticalOverlap) -> I64:
+    """The walk of large frames: one sparse IoU pass over the pairs the BEV grid cannot rule
+    out (near-linear in the boxes), then the greedy walk over boxes in ``order``."""
+    cls = boxes.cls
     rows, cols, iou = iou_3d_pairs(
         boxes.params, boxes.params, vertical=vertical, groups_a=cls, groups_b=cls
     )
@@ -52,12 +73,6 @@ def nms(
     rows, cols = rows[hit], cols[hit]  # still row-major: each row's partners are contiguous
     start = np.searchsorted(rows, np.arange(len(boxes) + 1)).tolist()
     partners = cols.tolist()
-    descending = descending_stable if tie_order is TieOrder.STABLE else descending_reference
-    walk: list[I64] = []
-    for code in codes:
-        members = np.flatnonzero(cls == code)
-        walk.append(members[descending(boxes.score[members])])
-    order = np.concatenate(walk)
     # The greedy walk is over boxes, not pairs: a kept box suppresses its listed partners.
     suppressed = bytearray(len(boxes))
     kept: list[int] = []

@@ -22,11 +22,13 @@ from simpletrack.core.config import (
     OutputPolicy,
     TrackerConfig,
     TrackScore,
+    VerticalOverlap,
 )
 from simpletrack.core.frames import POS_VEL, Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
 from simpletrack.core.nms import drop_degenerate, nms
+from simpletrack.core.pair_kernels import NOT_OVERLAP, class_table, overlap_kind
 from simpletrack.core.pairs import DENSE_CELLS, PairTable, far_cost
 from simpletrack.core.reassociation import reassociate
 from simpletrack.core.state import TrackTable, pack, unpack
@@ -55,6 +57,8 @@ class Tracker:
         self._metric_code = np.array(
             [_METRICS.index(config.for_code(c).metric) for c in codes], dtype=np.int64
         )
+        self._overlap_kind = np.array([_overlap_kind(c.metric) for c in cc], dtype=np.int64)
+        self._numpy_metric = self._overlap_kind == NOT_OVERLAP
         # One table serves both stages: a gated class lists what either could accept, the
         # stage-1 gate at its widest (gate_widening).
         self._gate_distance = np.array(
@@ -285,9 +289,14 @@ class Tracker:
         pred: F64,
         p_pred: F64,
     ) -> F64:
-        """The ordinary frame's table: every same-class pair, other pairs +inf."""
-        table = np.full((d_cls.size, t_cls.size), np.inf)
-        ia, ib = np.nonzero(d_cls[:, None] == t_cls[None, :])
+        """The ordinary frame's table: every same-class pair, other pairs +inf. The IoU
+        family in one compiled walk (core/pair_kernels.py); L2 and Mahalanobis in numpy."""
+        exact = self.config.vertical_overlap is VerticalOverlap.EXACT
+        d_codes, t_codes = d_cls.astype(np.int64), t_cls.astype(np.int64)
+        table = class_table(d_params, d_codes, pred, t_codes, self._overlap_kind, exact)
+        if not self._numpy_metric.any():
+            return table
+        ia, ib = np.nonzero((d_cls[:, None] == t_cls[None, :]) & self._numpy_metric[d_cls][:, None])
         pair_metric = self._metric_code[d_cls[ia]]
         for m in np.unique(pair_metric).tolist():
             metric = _METRICS[m]
@@ -593,6 +602,14 @@ class Tracker:
         tracker.last_stamp = None if obj["last_stamp"] is None else float(obj["last_stamp"])
         tracker.tracks = TrackTable.from_msgpack_obj(obj["tracks"])
         return tracker
+
+
+def _overlap_kind(metric: Metric) -> int:
+    """How core/pair_kernels.py reads a class's metric (NOT_OVERLAP: computed in numpy)."""
+    if metric in (Metric.L2, Metric.MAHALANOBIS):
+        return NOT_OVERLAP
+    three_d = metric in (Metric.GIOU_3D, Metric.IOU_3D)
+    return overlap_kind(three_d, metric in (Metric.GIOU_3D, Metric.GIOU_BEV))
 
 
 def _or(value: float | None, off: float) -> float:
