@@ -32,7 +32,11 @@ __all__ = ["Kernel", "compiled", "helper", "inline", "kernel", "preload"]
 
 ENV_VAR = "SIMPLETRACK_JIT"
 # Modules whose kernels preload() compiles: importing them registers their kernels.
-_KERNEL_MODULES = ("simpletrack.core.overlap_kernels", "simpletrack.core.pair_kernels")
+_KERNEL_MODULES = (
+    "simpletrack.core.overlap_kernels",
+    "simpletrack.core.pair_kernels",
+    "simpletrack.core.kalman_kernels",
+)
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"
 

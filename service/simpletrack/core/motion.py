@@ -12,12 +12,11 @@ import numpy as np
 
 from simpletrack.core.boxes import F64, YAW
 from simpletrack.core.config import KalmanConfig
+from simpletrack.core.kalman_kernels import predict_all, update_all
 
 DIM_X = 10
 DIM_Z = 7
 _VEL = slice(7, 10)
-_POS = slice(0, 3)
-_H = np.eye(DIM_Z, DIM_X)
 
 
 def _wrap_once(a: F64) -> F64:
@@ -51,18 +50,9 @@ class KalmanFilter:
         return x, np.broadcast_to(self.p0, (n, DIM_X, DIM_X)).copy()
 
     def predict(self, x: F64, p: F64, dt: F64) -> tuple[F64, F64]:
-        """One step of dt (per track) with one Q: x = F x, P = F P F^T + Q.
-
-        F = I + dt E (E copies velocities onto positions), so F P F^T is two row/column
-        additions rather than two dense (T, 10, 10) products."""
-        x_pred = x.copy()
-        x_pred[:, _POS] += x[:, _VEL] * dt[:, None]
-        fp = p.copy()
-        fp[:, _POS, :] += p[:, _VEL, :] * dt[:, None, None]
-        p_pred = fp.copy()
-        p_pred[:, :, _POS] += fp[:, :, _VEL] * dt[:, None, None]
-        p_pred += self.q
-        return x_pred, p_pred
+        """One step of dt (per track) with one Q: x = F x, P = F P F^T + Q (compiled:
+        core/kalman_kernels.py)."""
+        return predict_all(x, p, np.asarray(dt, dtype=np.float64), self.q)
 
     def innovation(self, p: F64) -> F64:
         """S = H P H^T + R, (T, 7, 7)."""
@@ -70,20 +60,9 @@ class KalmanFilter:
 
     def update(self, x: F64, p: F64, z: F64) -> tuple[F64, F64]:
         """Correct predicted states (T, 10) with measurements (T, 7), after the reference's
-        orientation correction, and wrap the yaw afterwards."""
-        x = x.copy()
-        z = z.copy()
-        x[:, YAW] = align_yaw(x[:, YAW], z[:, YAW])
-        z[:, YAW] = _wrap_once(z[:, YAW])
-        y = z - x[:, :DIM_Z]
-        pht = p[:, :, :DIM_Z]  # P H^T
-        s = pht[:, :DIM_Z, :] + self.r
-        k = pht @ np.linalg.inv(s)
-        x = x + np.einsum("tij,tj->ti", k, y)
-        i_kh = np.eye(DIM_X) - k @ _H
-        p = i_kh @ p @ i_kh.transpose(0, 2, 1) + k @ self.r @ k.transpose(0, 2, 1)
-        x[:, YAW] = _wrap_once(x[:, YAW])
-        return x, p
+        orientation correction, and wrap the yaw afterwards (compiled: core/kalman_kernels.py,
+        the Joseph form as filterpy computes it)."""
+        return update_all(x, p, np.asarray(z, dtype=np.float64), self.r)
 
 
 def align_yaw(predicted: F64, measured: F64) -> F64:
