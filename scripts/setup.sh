@@ -21,6 +21,10 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   rm -f "$log"
   touch "$stamp"
 fi
+# Compile the tracker's kernels now (numba caches them beside the source): the first demo,
+# service or test then loads them in about half a second instead of compiling for ~6 s.
+.venv/bin/python -c "from simpletrack.core import jit; jit.preload()" \
+  || echo "setup: compiling the kernels failed; they compile on first use (or run uncompiled)" >&2
 # System services used by the end-to-end tests (Prometheus); optional outside CI.
 if [ "${CI:-}" = "true" ] && ! command -v prometheus >/dev/null 2>&1 && [ "$(id -u)" = "0" ]; then
   (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq prometheus >/dev/null) \
