@@ -36,6 +36,7 @@ _KERNEL_MODULES = (
     "simpletrack.core.overlap_kernels",
     "simpletrack.core.pair_kernels",
     "simpletrack.core.kalman_kernels",
+    "simpletrack.core.assignment_kernels",
 )
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"

@@ -13,10 +13,12 @@ import numpy as np
 import numpy.typing as npt
 
 from simpletrack.core import gate, geometry
+from simpletrack.core.assignment_kernels import INFEASIBLE, stage1_dense
 from simpletrack.core.association import Assignment, assign, assign_pairs
 from simpletrack.core.boxes import F64, YAW, Boxes, transform_boxes
 from simpletrack.core.config import (
     ClassConfig,
+    Matcher,
     Metric,
     MotionModel,
     OutputPolicy,
@@ -65,6 +67,9 @@ class Tracker:
             [max(c.widest_max_distance, c.stage2_max_distance) for c in cc]
         )
         self._far_cost = [far_cost(c) for c in cc]
+        self._far_cost_array = np.array(self._far_cost, dtype=np.float64)
+        self._hungarian = np.array([c.matcher is Matcher.HUNGARIAN for c in cc], dtype=bool)
+        self._widened = np.array([c.gate_widening > 0 for c in cc], dtype=bool)
         self._max_distance = np.array([c.max_distance for c in cc])
         self._gate_widening = np.array([c.gate_widening for c in cc])
         self._fused = np.array([c.track_score is TrackScore.FUSED for c in cc], dtype=bool)
@@ -326,11 +331,29 @@ class Tracker:
         is solved on its full block, as it always was; a gated one from its listed pairs.
         ``reach`` is each track's threshold (max_distance unless gate_widening is on)."""
         d_cls = det_cls[cand]
+        codes = np.unique(np.concatenate([d_cls, trk_cls])).astype(np.int64)
+        if table.matrix is not None:
+            md_c, mt_c, um_c, status = stage1_dense(
+                table.matrix,
+                codes,
+                cand,
+                cand_rows,
+                d_cls.astype(np.int64),
+                trk_cls.astype(np.int64),
+                self._max_distance,
+                self._hungarian,
+                self._widened,
+                reach,
+                self._far_cost_array,
+            )
+            if status != INFEASIBLE:
+                return md_c, mt_c, um_c
+            # A block without a finite full assignment: the Python path raises scipy's error.
         n_rows = int(cand_rows.max(initial=-1)) + 1
         md: list[I64] = []
         mt: list[I64] = []
         um: list[I64] = []
-        for code in np.unique(np.concatenate([d_cls, trk_cls])).tolist():
+        for code in codes.tolist():
             c = self.config.for_code(code)
             in_class = d_cls == code
             t_idx = np.flatnonzero(trk_cls == code)
