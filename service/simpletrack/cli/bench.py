@@ -42,9 +42,14 @@ what it measures:
   against N on a log-log plot with the fitted growth exponent.
   The speed-up against the reference uses its authors' own measurement on this machine kind
   (../shared/data/reference/README.md: median 0.35 s per nuScenes frame, p99 1.6 s).
+  --against REF: the same command for this code and for git revision REF (checked out in a
+  throwaway worktree), --rounds times each in fresh processes, alternating; the data, scenes,
+  sequences, sizes and sweep options are passed to both. Each figure's median, and the ratio
+  (REF / this for times, this / REF for frames/s: above 1, this code is faster).
 
 examples:
   simpletrack bench core
+  simpletrack bench core --scenes 10 --kitti-sequences 10 --sizes 100,1000 --against main
   simpletrack bench core --scenes 20 --kitti-sequences 0 --sizes 10,100,1000 --json core.json
   simpletrack bench core --scenes 0 --kitti-sequences 0 --plot-dir plots/   # sweep only
 """
@@ -159,6 +164,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     core.add_argument("--json", type=Path, help="write every figure to this JSON file")
     core.add_argument("--plot-dir", type=Path, help="write core_scaling.png and core_stages.png")
+    core.add_argument(
+        "--against",
+        metavar="REF",
+        help="also measure git revision REF (a throwaway worktree) with the same options, "
+        "alternating in fresh processes, and print each figure with the ratio",
+    )
+    core.add_argument(
+        "--rounds", type=int, default=3, help="with --against: alternated rounds (default 3)"
+    )
     core.set_defaults(func=run_core)
 
     svc = sub.add_parser(
@@ -388,6 +402,8 @@ def run_core(args: argparse.Namespace) -> int:
             "or --kitti-sequences 0 to skip them"
         )
     _out_paths(args)
+    if args.against is not None:
+        return _core_against(args)
     before = machine()
     opts = CoreOptions(
         args.data, args.scenes, args.kitti_sequences, sizes, args.sweep_frames, args.sweep_budget
@@ -410,6 +426,45 @@ def run_core(args: argparse.Namespace) -> int:
         doc["plots"] = [str(p) for p in written]
         for p in written:
             print(f"wrote {p}")
+    _write_json(args.json, doc)
+    return 0
+
+
+def _core_against(args: argparse.Namespace) -> int:
+    from simpletrack.bench.against import AgainstError, compare, table
+    from simpletrack.bench.stats import machine
+
+    if not (1 <= args.rounds <= 50):
+        raise UserError(f"--rounds {args.rounds} must be in 1..50")
+    if args.plot_dir is not None:
+        raise UserError("--plot-dir draws one side: run without --against for the plots")
+    # Options both sides' bench core has had since the first release.
+    argv = [
+        f"--data={args.data}",
+        f"--scenes={args.scenes}",
+        f"--kitti-sequences={args.kitti_sequences}",
+        f"--sizes={args.sizes}",
+        f"--sweep-frames={args.sweep_frames}",
+        f"--sweep-budget={args.sweep_budget}",
+    ]
+    before = machine()
+    try:
+        result = compare(
+            args.against,
+            argv,
+            args.rounds,
+            progress=lambda m: print(m, file=sys.stderr, flush=True),
+        )
+    except AgainstError as exc:
+        raise UserError(str(exc)) from exc
+    print(table(result))
+    doc = {
+        "benchmark": "core_against",
+        "command": "simpletrack " + " ".join(sys.argv[1:]),
+        "machine_before": before,
+        "machine_after": machine(),
+        **result,
+    }
     _write_json(args.json, doc)
     return 0
 
