@@ -28,8 +28,8 @@ TARGETS: tuple[tuple[str, str, str], ...] = (
     ("predict", "simpletrack.core.tracker", "Tracker._predict"),
     ("cost_matrix", "simpletrack.core.tracker", "Tracker._distance_table"),
     ("cost_matrix", "simpletrack.core.geometry", "distance_pairs"),
-    ("assignment", "simpletrack.core.tracker", "assign"),
-    ("assignment", "simpletrack.core.tracker", "assign_pairs"),
+    # Stage 1 whole: a dense frame's is one compiled call (core/assignment_kernels.py).
+    ("assignment", "simpletrack.core.tracker", "Tracker._stage1"),
     ("update", "simpletrack.core.motion", "KalmanFilter.update"),
     ("update", "simpletrack.core.motion", "ConstantVelocity.update"),
     ("lifecycle", "simpletrack.core.tracker", "Tracker._transition"),
