@@ -6,8 +6,12 @@ are never asserted: only the structure a reader relies on."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -146,3 +150,40 @@ def test_medians_leave_out_rounds_without_the_figure() -> None:
     row = next(r for r in compare_docs("core", this, ref) if r["figure"] == "kitti_car frames/s")
     assert row["this"] == 200.0 and row["ref"] == 100.0
     assert row["this_rounds"] == [100.0, None, 300.0, 200.0]
+
+
+@needs_git
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_an_interrupted_comparison_removes_refs_tree(tmp_path: Path, how: str) -> None:
+    # TMPDIR: the run's temporary directory lands here, where nothing else runs.
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    cmd = [sys.executable, "-m", "simpletrack.cli.main", "bench", "core", "--scenes", "0",
+           "--kitti-sequences", "0", "--sizes", "10,20,50", "--sweep-frames", "200",
+           "--against", "HEAD", "--rounds", "3"]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd,
+        env=env,
+        start_new_session=True,  # a group of its own, as a terminal's Ctrl-C reaches
+        # a background child inherits SIGINT ignored from a non-interactive shell
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob("simpletrack-against-*/ref/service")):
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode != 0
+    assert "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []

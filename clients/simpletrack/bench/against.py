@@ -20,11 +20,13 @@ import io
 import json
 import os
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
 import tarfile
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -152,6 +154,24 @@ def ref_tree(root: Path, revision: str, parent: Path) -> Iterator[Path]:
         yield dest
     finally:
         shutil.rmtree(dest, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a CI timeout, `kill`) unwinds like Ctrl-C, so REF's temporary tree is removed
+    either way; Python's default would end the process without running ``finally``."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 # ----------------------------------------------------------------------------- runs
@@ -323,7 +343,10 @@ def compare(
     order = ["this", "ref"] * rounds
     docs: dict[str, list[dict[str, Any]]] = {"this": [], "ref": []}
     seconds: dict[str, list[float]] = {"this": [], "ref": []}
-    with tempfile.TemporaryDirectory(prefix="simpletrack-against-") as tmp:
+    with (
+        _terminate_as_interrupt(),
+        tempfile.TemporaryDirectory(prefix="simpletrack-against-") as tmp,
+    ):
         work = Path(tmp) / "runs"
         work.mkdir()
         with ref_tree(root, revision, Path(tmp)) as tree:
