@@ -57,7 +57,7 @@ against another revision (--against REF):
   REF's bench must know them; every revision since the service/schemas/clients layout does).
   Printed: each figure's median over the rounds for both sides and the ratio, > 1 when this
   code is better (REF/this for times, this/REF for frames/s); "–" where one side lacks the
-  figure. --json writes both sides' documents and the ratios; --plot-dir is not drawn.
+  figure. --json writes both sides' documents and the ratios; --plot-dir is refused.
   A round is two runs of the command without --against (the defaults: ~2 min each).
 """
 
@@ -103,7 +103,7 @@ against another revision (--against REF):
   alternating, each a fresh process whose server and load generator run that side's code.
   Passed through to both sides: --sensors --seconds --warmup --rate --workers --queue-size
   --source --data --synthetic-boxes --p99-limit --budget --no-echo; --profile and --plot-dir
-  are not. A round is two full service benchmarks: with the defaults up to ~2 x 8 min, so
+  are refused. A round is two full service benchmarks: with the defaults up to ~2 x 8 min, so
   the default is 2 rounds and a comparison is best made on a few steps (--sensors 1,10,20
   --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
   latencies and CPU per frame, this/REF for frames/s, sensors and streams per core).
