@@ -1,206 +1,376 @@
-"""``bench core --against REF``: this code and a git revision's, measured in one run.
+"""``bench core|service --against REF``: the same benchmark run by this code and by the code of
+git revision REF, in alternating rounds on the same machine, and each figure's ratio.
 
-REF's package is checked out as a throwaway detached worktree (outside the checkout, removed
-afterwards, also on failure or Ctrl-C). Each round runs the same ``bench core`` command once
-with this code and once with REF's, each in a fresh interpreter (the same Python, PYTHONPATH
-on the side's three source folders), the order alternating from round to round so that
-neither side always runs on the warmer machine. Each figure is the median over the rounds;
-the ratio is REF / this for times and this / REF for throughput: above 1, this code is faster.
+A figure measured minutes apart on a shared machine moves by tens of percent, so a ratio is
+only worth quoting when both sides ran in the same window: the rounds alternate (this code,
+REF, this code, REF, ...) and the medians over rounds are compared. Every run is a fresh
+interpreter, so neither side inherits the other's imports, compiled kernels or allocator.
+
+REF's files come from ``git archive`` into a temporary directory outside the checkout (no
+worktree is registered in the repository, so an interrupted run leaves nothing in ``.git``);
+each side's run is its own ``simpletrack bench ... --json FILE`` with PYTHONPATH set to that
+side's service/schemas/clients folders and the same Python interpreter. The parent reads the
+two JSON documents, so REF only has to accept the options passed through.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
+import shutil
+import signal
 import statistics
 import subprocess
 import sys
+import tarfile
 import tempfile
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-ROOT = Path(__file__).resolve().parents[3]
-SOURCE_FOLDERS = ("service", "schemas", "clients")
-# (figure, path into a side's JSON, higher is better)
-_LOAD_FIGURES = (
-    ("p50 ms", ("latency", "p50_ms"), False),
-    ("p99 ms", ("latency", "p99_ms"), False),
-    ("frames/s", ("frames_per_s",), True),
-)
+from simpletrack.bench.stats import table
+
+Kind = Literal["time", "rate", "info"]
+Bench = Literal["core", "service"]
+FOLDERS = ("service", "schemas", "clients")  # the package's portions, as in the checkout
+MISSING = "–"  # a figure one side does not report
+STDERR_TAIL = 15  # lines of a failed run's stderr quoted in the error
+
+# The child: record which files it imported (the proof of which code ran), then run the
+# command-line entry point exactly as `simpletrack` would.
+BOOTSTRAP = """\
+import json, runpy, sys
+out = sys.argv[1]
+sys.argv = ["simpletrack", *sys.argv[2:]]
+import simpletrack.bench, simpletrack.core
+with open(out, "w") as f:
+    json.dump({"core": simpletrack.core.__file__, "bench": simpletrack.bench.__file__}, f)
+runpy.run_module("simpletrack.cli.main", run_name="__main__", alter_sys=True)
+"""
 
 
 class AgainstError(Exception):
-    """REF cannot be measured: not a revision, not a git checkout, its bench failed."""
+    """REF cannot be compared: not a revision, not a git checkout, or its run failed."""
 
 
 @dataclass(frozen=True, slots=True)
 class Side:
-    label: str
+    """One side of the comparison: a tree holding the package's folders."""
+
+    name: str  # "this" or "ref"
+    label: str  # what the table's column says
     root: Path
+    revision: str | None
+    dirty: bool
 
-    def env(self) -> dict[str, str]:
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(str(self.root / f) for f in SOURCE_FOLDERS)
-        return env
+    def pythonpath(self) -> str:
+        return os.pathsep.join(str(self.root / f) for f in FOLDERS)
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "root": str(self.root),
+            "revision": self.revision,
+            "uncommitted_changes": self.dirty,
+        }
 
 
-def _git(*args: str) -> str:
+@dataclass(frozen=True, slots=True)
+class Figure:
+    name: str
+    kind: Kind
+    unit: str
+
+
+# ----------------------------------------------------------------------------- git
+def checkout_root() -> Path:
+    """The tree this code was imported from (clients/simpletrack/bench/ is three levels down)."""
+    return Path(__file__).resolve().parents[3]
+
+
+def _git(root: Path, *args: str, binary: bool = False) -> subprocess.CompletedProcess[Any]:
     try:
-        done = subprocess.run(
-            ["git", "-C", str(ROOT), *args], capture_output=True, text=True, check=True
+        return subprocess.run(
+            ["git", "-C", str(root), *args], capture_output=True, text=not binary, check=False
         )
-    except FileNotFoundError as exc:
-        raise AgainstError("--against needs git on the PATH") from exc
-    except subprocess.CalledProcessError as exc:
-        raise AgainstError(exc.stderr.strip() or f"git {' '.join(args)} failed") from exc
-    return done.stdout.strip()
+    except FileNotFoundError:
+        raise AgainstError("--against needs git, and no git command was found") from None
 
 
-def resolve(ref: str) -> str:
-    """REF's full commit hash; AgainstError with git's reason when it names none."""
-    try:
-        _git("rev-parse", "--show-toplevel")
-    except AgainstError as exc:
-        raise AgainstError(f"--against needs a git checkout of the project at {ROOT}") from exc
-    try:
-        return _git("rev-parse", "--verify", "--quiet", f"{ref}^{{commit}}")
-    except AgainstError as exc:
-        raise AgainstError(f"--against {ref!r} names no commit of {ROOT}") from exc
+def _err(proc: subprocess.CompletedProcess[Any]) -> str:
+    text = proc.stderr if isinstance(proc.stderr, str) else proc.stderr.decode(errors="replace")
+    return text.strip().splitlines()[-1] if text.strip() else f"exit code {proc.returncode}"
 
 
-@contextmanager
-def checkout(commit: str) -> Iterator[Path]:
-    """REF's tree in a temporary detached worktree, removed on the way out."""
-    parent = Path(tempfile.mkdtemp(prefix="simpletrack-against-"))
-    path = parent / "tree"
-    _git("worktree", "add", "--detach", "--quiet", str(path), commit)
-    try:
-        yield path
-    finally:
-        subprocess.run(
-            ["git", "-C", str(ROOT), "worktree", "remove", "--force", str(path)],
-            capture_output=True,
-            check=False,
-        )
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "prune"], check=False)
-        if parent.exists():
-            import shutil
-
-            shutil.rmtree(parent, ignore_errors=True)
-
-
-def package_of(side: Side) -> str:
-    """Where ``side``'s interpreter imports the tracker from: its own tree, or the run would
-    measure the installed package twice (AgainstError then)."""
-    code = "import simpletrack.core as c; print(c.__file__)"
-    done = subprocess.run(
-        [sys.executable, "-c", code], env=side.env(), capture_output=True, text=True, check=False
-    )
-    path = done.stdout.strip()
-    if done.returncode != 0 or not Path(path).resolve().is_relative_to(side.root.resolve()):
+def this_side(root: Path) -> Side:
+    """This code, which must sit in a git checkout for REF to be found."""
+    top = _git(root, "rev-parse", "--show-toplevel")
+    if top.returncode != 0 or Path(top.stdout.strip()).resolve() != root.resolve():
         raise AgainstError(
-            f"{side.label} imports simpletrack.core from {path or '?'}, not {side.root}"
+            f"--against needs this code in a git checkout: {root} is not the top of one "
+            f"({_err(top) if top.returncode else 'its repository is ' + top.stdout.strip()})"
         )
-    return path
+    head = _git(root, "rev-parse", "HEAD").stdout.strip() or None
+    dirty = bool(_git(root, "status", "--porcelain", "--untracked-files=no").stdout.strip())
+    label = "this code" + (f" ({head[:7]}{'+' if dirty else ''})" if head else "")
+    return Side("this", label, root, head, dirty)
 
 
-def run_side(side: Side, argv: list[str], out: Path) -> dict[str, Any]:
-    """One ``bench core`` run of ``side``'s code; its JSON document."""
-    cmd = [sys.executable, "-m", "simpletrack.cli.main", "bench", "core", *argv, "--json", str(out)]
-    done = subprocess.run(cmd, env=side.env(), capture_output=True, text=True, check=False)
-    if done.returncode != 0 or not out.exists():
-        tail = "\n".join((done.stderr or done.stdout).strip().splitlines()[-5:])
-        raise AgainstError(f"the bench of {side.label} failed (exit {done.returncode}):\n{tail}")
+def resolve(root: Path, ref: str) -> str:
+    """REF's full commit id, or a one-line reason why there is none."""
+    if not ref or ref.startswith("-"):
+        raise AgainstError(f"--against {ref!r}: not a git revision")
+    proc = _git(root, "rev-parse", "--verify", "--quiet", "--end-of-options", f"{ref}^{{commit}}")
+    if proc.returncode != 0 or not proc.stdout.strip():
+        raise AgainstError(
+            f"--against {ref!r}: not a git revision of {root} "
+            "(a branch, tag or commit, e.g. main, HEAD~3, 8ecd962)"
+        )
+    return str(proc.stdout.strip())
+
+
+@contextlib.contextmanager
+def ref_tree(root: Path, revision: str, parent: Path) -> Iterator[Path]:
+    """REF's files under ``parent``/ref, removed on leaving (error and Ctrl-C included)."""
+    dest = parent / "ref"
+    dest.mkdir()
+    try:
+        proc = _git(root, "archive", "--format=tar", revision, *FOLDERS, binary=True)
+        if proc.returncode != 0:
+            raise AgainstError(f"git archive {revision[:12]} failed: {_err(proc)}")
+        with tarfile.open(fileobj=io.BytesIO(proc.stdout)) as tar:
+            tar.extractall(dest, filter="data")
+        missing = [f for f in FOLDERS if not (dest / f / "simpletrack").is_dir()]
+        if missing:
+            raise AgainstError(
+                f"revision {revision[:12]} has no simpletrack package under {', '.join(missing)}"
+                " (it predates the service/schemas/clients layout)"
+            )
+        yield dest
+    finally:
+        shutil.rmtree(dest, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a CI timeout, `kill`) unwinds like Ctrl-C, so REF's temporary tree is removed
+    either way; Python's default would end the process without running ``finally``."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+# ----------------------------------------------------------------------------- runs
+def run_once(
+    side: Side, bench: Bench, options: Sequence[str], work: Path, tag: str
+) -> dict[str, Any]:
+    """One fresh interpreter running ``simpletrack bench BENCH OPTIONS --json`` with ``side``'s
+    code; its JSON document with ``imported`` (the files it loaded) added."""
+    out, imported = work / f"{tag}.json", work / f"{tag}.imported.json"
+    log_out, log_err = work / f"{tag}.stdout", work / f"{tag}.stderr"
+    # Only this side's folders: the caller's PYTHONPATH may name this checkout, which would
+    # shadow REF's modules.
+    env = {**os.environ, "PYTHONPATH": side.pythonpath()}
+    # -P: no current directory on sys.path, so no stray tree there shadows either side.
+    cmd = [sys.executable, "-P", "-c", BOOTSTRAP, str(imported), "bench", bench, *options]
+    with log_out.open("wb") as so, log_err.open("wb") as se:
+        rc = subprocess.run([*cmd, "--json", str(out)], env=env, stdout=so, stderr=se).returncode
+    if rc != 0 or not out.is_file():
+        tail = log_err.read_text(errors="replace").strip().splitlines()[-STDERR_TAIL:]
+        raise AgainstError(
+            f"{side.label}: `simpletrack bench {bench} {' '.join(options)}` exited with {rc}"
+            + ("" if out.is_file() else " and wrote no JSON")
+            + (":\n    " + "\n    ".join(tail) if tail else "")
+        )
     doc: dict[str, Any] = json.loads(out.read_text())
+    doc["imported"] = json.loads(imported.read_text()) if imported.is_file() else None
     return doc
 
 
-def _dig(doc: dict[str, Any], path: tuple[str, ...]) -> float | None:
-    cur: Any = doc
-    for key in path:
-        if not isinstance(cur, dict) or key not in cur:
-            return None
-        cur = cur[key]
-    return float(cur) if isinstance(cur, int | float) else None
+# ----------------------------------------------------------------------------- figures
+def _num(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
 
-def figures(doc: dict[str, Any]) -> dict[str, tuple[float | None, bool]]:
-    """Every comparable figure of one run: name -> (value, higher is better)."""
-    out: dict[str, tuple[float | None, bool]] = {}
-    for load, result in (doc.get("loads") or {}).items():
-        for name, path, higher in _LOAD_FIGURES:
-            out[f"{load} {name}"] = (_dig(result, path), higher)
-    for point in (doc.get("sweep") or {}).get("points", []):
-        out[f"sweep {point['boxes']} boxes p50 ms"] = (_dig(point, ("latency", "p50_ms")), False)
+def core_figures(doc: dict[str, Any]) -> dict[Figure, float | None]:
+    """The headline figures of one ``bench core`` document, missing keys tolerated (REF's
+    document may be older)."""
+    out: dict[Figure, float | None] = {}
+    for name, r in (doc.get("loads") or {}).items():
+        lat = r.get("latency") or {}
+        out[Figure(f"{name} frames/s", "rate", "frames/s")] = _num(r.get("frames_per_s"))
+        for q in ("p50", "p99"):
+            out[Figure(f"{name} {q}", "time", "ms")] = _num(lat.get(f"{q}_ms"))
+        for stage, ms in ((r.get("stages") or {}).get("ms_per_frame") or {}).items():
+            out[Figure(f"{name} stage {stage}", "time", "ms")] = _num(ms)
+    sweep = doc.get("sweep") or {}
+    for p in sweep.get("points") or []:
+        lat = p.get("latency") or {}
+        out[Figure(f"sweep {p.get('boxes')} boxes p50", "time", "ms")] = _num(lat.get("p50_ms"))
+        cost = ((p.get("stages") or {}).get("ms_per_frame") or {}).get("cost_matrix")
+        out[Figure(f"sweep {p.get('boxes')} boxes cost_matrix", "time", "ms")] = _num(cost)
+    if sweep:
+        out[Figure("sweep growth exponent", "info", "")] = _num(sweep.get("exponent"))
     return out
 
 
-def _median(values: list[float | None]) -> float | None:
-    seen = [v for v in values if v is not None]
-    return statistics.median(seen) if seen else None
+def service_figures(doc: dict[str, Any]) -> dict[Figure, float | None]:
+    """The headline figures of one ``bench service`` document, per step and for capacity."""
+    out: dict[Figure, float | None] = {}
+    for s in doc.get("steps") or []:
+        step = f"{s.get('kind')} {s.get('sensors')} sensors"
+        lat = s.get("latency") or {}
+        for q in ("p50", "p99"):
+            out[Figure(f"{step} {q}", "time", "ms")] = _num(lat.get(f"{q}_ms"))
+        out[Figure(f"{step} delivered", "rate", "frames/s")] = _num(s.get("delivered_per_s"))
+        cpu = _num(s.get("server_cpu_ms_per_frame"))
+        out[Figure(f"{step} server CPU per frame", "time", "ms")] = cpu
+    cap = doc.get("capacity") or {}
+    out[Figure("1 sensor p99", "time", "ms")] = _num(cap.get("one_sensor_p99_ms"))
+    out[Figure("largest passing step", "rate", "sensors")] = _num(cap.get("max_sensors_passing"))
+    out[Figure("streams per core", "rate", "streams")] = _num(cap.get("streams_per_core"))
+    return out
+
+
+FIGURES: dict[Bench, Callable[[dict[str, Any]], dict[Figure, float | None]]] = {
+    "core": core_figures,
+    "service": service_figures,
+}
+
+
+def ratio(kind: Kind, this: float | None, ref: float | None) -> float | None:
+    """> 1 when this code is better: REF/this for times, this/REF for rates."""
+    if kind == "info" or this is None or ref is None or this <= 0 or ref <= 0:
+        return None
+    return ref / this if kind == "time" else this / ref
+
+
+def compare_docs(
+    bench: Bench, this_docs: Sequence[dict[str, Any]], ref_docs: Sequence[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """Per figure (in this code's order, then REF's own): the median of each side over its
+    rounds (rounds where the figure is absent are left out) and the ratio of the medians."""
+    per_round = {
+        "this": [FIGURES[bench](d) for d in this_docs],
+        "ref": [FIGURES[bench](d) for d in ref_docs],
+    }
+    order: dict[Figure, None] = {}
+    for side in ("this", "ref"):
+        for figs in per_round[side]:
+            order.update(dict.fromkeys(figs))
+    rows = []
+    for fig in order:
+        row: dict[str, Any] = {"figure": fig.name, "kind": fig.kind, "unit": fig.unit}
+        for side, rounds in per_round.items():
+            values = [r.get(fig) for r in rounds]
+            present = [v for v in values if v is not None]
+            row[f"{side}_rounds"] = values
+            row[side] = round(statistics.median(present), 6) if present else None
+        r = ratio(fig.kind, row["this"], row["ref"])
+        row["ratio"] = None if r is None else round(r, 4)
+        rows.append(row)
+    return rows
+
+
+def _cell(value: float | None, kind: Kind, unit: str) -> str:
+    if value is None:
+        return MISSING
+    if kind == "rate" and unit == "sensors":
+        return f"{value:g}"
+    return f"{value:.1f}" if kind == "rate" else f"{value:.3f}"
+
+
+def against_table(doc: dict[str, Any]) -> str:
+    """The printed comparison: figure, this code, REF, ratio."""
+    this, ref = doc["sides"]["this"], doc["sides"]["ref"]
+    rows = [
+        [
+            f"{r['figure']}" + (f" ({r['unit']})" if r["unit"] else ""),
+            _cell(r["this"], r["kind"], r["unit"]),
+            _cell(r["ref"], r["kind"], r["unit"]),
+            MISSING if r["ratio"] is None else f"{r['ratio']:.2f}x",
+        ]
+        for r in doc["figures"]
+    ]
+    only = [r["figure"] for r in doc["figures"] if (r["this"] is None) != (r["ref"] is None)]
+    lines = [
+        f"{doc['benchmark']} against {doc['against']['ref']} ({doc['against']['revision'][:12]}):"
+        f" median of {doc['rounds']} round(s), each side a fresh process, alternating "
+        f"{' '.join('A' if s == 'this' else 'B' for s in doc['order'])} "
+        "(A this code, B REF)",
+        "ratio > 1: this code is better (REF/this for times in ms, this/REF for frames/s, "
+        "sensors and streams)",
+        "",
+        table(["figure", this["label"], ref["label"], "ratio"], rows),
+    ]
+    if only:
+        lines += [
+            "",
+            f"{MISSING}: reported by one side only ({len(only)}: {', '.join(only[:6])}"
+            + (", ..." if len(only) > 6 else "")
+            + ")",
+        ]
+    return "\n".join(lines)
 
 
 def compare(
+    bench: Bench,
+    options: Sequence[str],
     ref: str,
-    argv: list[str],
     rounds: int,
-    progress: Callable[[str], None] = lambda m: None,
+    progress: Callable[[str], None] = print,
+    root: Path | None = None,
 ) -> dict[str, Any]:
-    """Both sides ``rounds`` times, alternating; medians and ratios per figure."""
-    commit = resolve(ref)
-    runs: dict[str, list[dict[str, Any]]] = {"this": [], "ref": []}
-    with checkout(commit) as tree, tempfile.TemporaryDirectory() as tmp:
-        sides = {"this": Side("this code", ROOT), "ref": Side(f"{ref} ({commit[:9]})", tree)}
-        packages = {key: package_of(side) for key, side in sides.items()}
-        for k in range(rounds):
-            order = ("this", "ref") if k % 2 == 0 else ("ref", "this")
-            for key in order:
-                progress(f"round {k + 1}/{rounds}: {sides[key].label} ...")
-                runs[key].append(run_side(sides[key], argv, Path(tmp) / f"{key}-{k}.json"))
-    names: list[str] = []
-    for doc in runs["this"] + runs["ref"]:
-        names += [n for n in figures(doc) if n not in names]
-    rows = []
-    for name in names:
-        mine = _median([figures(d).get(name, (None, False))[0] for d in runs["this"]])
-        theirs = _median([figures(d).get(name, (None, False))[0] for d in runs["ref"]])
-        higher = next(figures(d)[name][1] for d in runs["this"] + runs["ref"] if name in figures(d))
-        ratio = None
-        if mine and theirs:
-            ratio = round(mine / theirs if higher else theirs / mine, 2)
-        rows.append({"figure": name, "this": mine, "ref": theirs, "ratio": ratio})
+    """Run ``simpletrack bench BENCH OPTIONS`` ``rounds`` times with this code and with REF's,
+    alternating, and compare the medians. Raises AgainstError with a one-line reason."""
+    root = root or checkout_root()
+    this = this_side(root)
+    revision = resolve(root, ref)
+    order = ["this", "ref"] * rounds
+    docs: dict[str, list[dict[str, Any]]] = {"this": [], "ref": []}
+    seconds: dict[str, list[float]] = {"this": [], "ref": []}
+    with (
+        _terminate_as_interrupt(),
+        tempfile.TemporaryDirectory(prefix="simpletrack-against-") as tmp,
+    ):
+        work = Path(tmp) / "runs"
+        work.mkdir()
+        with ref_tree(root, revision, Path(tmp)) as tree:
+            other = Side("ref", f"{ref} ({revision[:7]})", tree, revision, False)
+            sides = {"this": this, "ref": other}
+            for k, name in enumerate(order):
+                side = sides[name]
+                n = k // 2 + 1
+                progress(f"round {n}/{rounds}: {side.label} ...")
+                t0 = time.monotonic()
+                docs[name].append(run_once(side, bench, options, work, f"{name}-{n}"))
+                seconds[name].append(round(time.monotonic() - t0, 1))
+                progress(f"round {n}/{rounds}: {side.label} took {seconds[name][-1]:.1f} s")
     return {
-        "against": ref,
-        "commit": commit,
+        "benchmark": f"bench {bench}",
+        "against": {"ref": ref, "revision": revision},
         "rounds": rounds,
-        "command": ["bench", "core", *argv],
-        "packages": packages,
-        "figures": rows,
-        "runs": runs,
+        "order": order,
+        "options_passed": list(options),
+        "ratio": "> 1 means this code is better: REF/this for times, this/REF for rates",
+        "ref_tree": str(tree),  # removed by now; recorded so a reader can check it is gone
+        "sides": {
+            name: {**side.describe(), "run_seconds": seconds[name], "runs": docs[name]}
+            for name, side in sides.items()
+        },
+        "figures": compare_docs(bench, docs["this"], docs["ref"]),
     }
-
-
-def table(result: dict[str, Any]) -> str:
-    """The comparison as a text table, with what the ratio means."""
-
-    def cell(v: float | None) -> str:
-        return "–" if v is None else f"{v:.4g}"
-
-    ref = f"{result['against']} ({result['commit'][:9]})"
-    head = ("figure", "this code", ref, "ratio")
-    body = [
-        (r["figure"], cell(r["this"]), cell(r["ref"]), cell(r["ratio"])) for r in result["figures"]
-    ]
-    widths = [max(len(str(row[i])) for row in (head, *body)) for i in range(4)]
-    lines = [
-        f"this code against {ref}: medians of {result['rounds']} alternated rounds; "
-        "ratio = REF / this for times, this / REF for frames/s (above 1: this code is faster)",
-        "  ".join(h.rjust(w) for h, w in zip(head, widths, strict=True)),
-        "  ".join("-" * w for w in widths),
-    ]
-    for row in body:
-        lines.append("  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)))
-    return "\n".join(lines)

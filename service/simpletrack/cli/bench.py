@@ -42,16 +42,23 @@ what it measures:
   against N on a log-log plot with the fitted growth exponent.
   The speed-up against the reference uses its authors' own measurement on this machine kind
   (../shared/data/reference/README.md: median 0.35 s per nuScenes frame, p99 1.6 s).
-  --against REF: the same command for this code and for git revision REF (checked out in a
-  throwaway worktree), --rounds times each in fresh processes, alternating; the data, scenes,
-  sequences, sizes and sweep options are passed to both. Each figure's median, and the ratio
-  (REF / this for times, this / REF for frames/s: above 1, this code is faster).
 
 examples:
   simpletrack bench core
-  simpletrack bench core --scenes 10 --kitti-sequences 10 --sizes 100,1000 --against main
   simpletrack bench core --scenes 20 --kitti-sequences 0 --sizes 10,100,1000 --json core.json
   simpletrack bench core --scenes 0 --kitti-sequences 0 --plot-dir plots/   # sweep only
+  simpletrack bench core --scenes 10 --kitti-sequences 2 --sizes 100,1000 --against main
+
+against another revision (--against REF):
+  REF's files are taken from git (git archive into a temporary directory, removed afterwards)
+  and the same benchmark runs --rounds times with this code and with REF's, alternating, each
+  run a fresh `simpletrack bench core` process with its own code on PYTHONPATH. Passed through
+  to both sides: --data --scenes --kitti-sequences --sizes --sweep-frames --sweep-budget (so
+  REF's bench must know them; every revision since the service/schemas/clients layout does).
+  Printed: each figure's median over the rounds for both sides and the ratio, > 1 when this
+  code is better (REF/this for times, this/REF for frames/s); "–" where one side lacks the
+  figure. --json writes both sides' documents and the ratios; --plot-dir is refused.
+  A round is two runs of the command without --against (the defaults: ~2 min each).
 """
 
 SCALE_EPILOG = """\
@@ -88,6 +95,18 @@ examples:
   simpletrack bench service
   simpletrack bench service --sensors 1,5,10,20 --seconds 10 --json service.json --plot-dir plots/
   simpletrack bench service --sensors 2 --seconds 1 --source synthetic --no-echo   # smoke
+  simpletrack bench service --sensors 1,10,20 --seconds 5 --no-echo --against main
+
+against another revision (--against REF):
+  as for `bench core --against`: REF's files from git into a temporary directory (removed
+  afterwards), then --rounds rounds of this code's and REF's `simpletrack bench service`,
+  alternating, each a fresh process whose server and load generator run that side's code.
+  Passed through to both sides: --sensors --seconds --warmup --rate --workers --queue-size
+  --source --data --synthetic-boxes --p99-limit --budget --no-echo; --profile and --plot-dir
+  are refused. A round is two full service benchmarks: with the defaults up to ~2 x 8 min, so
+  the default is 2 rounds and a comparison is best made on a few steps (--sensors 1,10,20
+  --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
+  latencies and CPU per frame, this/REF for frames/s, sensors and streams per core).
 """
 
 
@@ -164,15 +183,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     core.add_argument("--json", type=Path, help="write every figure to this JSON file")
     core.add_argument("--plot-dir", type=Path, help="write core_scaling.png and core_stages.png")
-    core.add_argument(
-        "--against",
-        metavar="REF",
-        help="also measure git revision REF (a throwaway worktree) with the same options, "
-        "alternating in fresh processes, and print each figure with the ratio",
-    )
-    core.add_argument(
-        "--rounds", type=int, default=3, help="with --against: alternated rounds (default 3)"
-    )
+    _add_against_args(core, rounds=3)
     core.set_defaults(func=run_core)
 
     svc = sub.add_parser(
@@ -242,6 +253,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     svc.add_argument(
         "--plot-dir", type=Path, help="write service_latency_cdf.png and service_capacity.png"
     )
+    _add_against_args(svc, rounds=2)
     svc.set_defaults(func=run_service)
 
     scale = sub.add_parser(
@@ -339,6 +351,54 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     faults.set_defaults(func=run_faults)
 
 
+def _add_against_args(parser: argparse.ArgumentParser, rounds: int) -> None:
+    parser.add_argument(
+        "--against",
+        metavar="REF",
+        help="also run REF's code (a git revision: main, HEAD~3, a commit) in alternating "
+        "rounds and print each figure's ratio (see below)",
+    )
+    parser.add_argument(
+        "--rounds",
+        type=int,
+        default=rounds,
+        help=f"with --against: runs of each side, alternating (default {rounds})",
+    )
+
+
+def _against(args: argparse.Namespace, bench: str, options: list[str]) -> int:
+    """``--against``: both sides' runs, the comparison printed and written."""
+    from simpletrack.bench.against import AgainstError, against_table, compare
+    from simpletrack.bench.stats import machine
+
+    if not (1 <= args.rounds <= 50):
+        raise UserError(f"--rounds {args.rounds} must be in 1..50")
+    for flag in ("plot_dir", "profile"):
+        if getattr(args, flag, None) is not None:
+            raise UserError(f"--{flag.replace('_', '-')} does not combine with --against")
+    _out_paths(args)
+    before = machine()
+    try:
+        result = compare(
+            "core" if bench == "core" else "service",
+            options,
+            args.against,
+            args.rounds,
+            progress=lambda m: print(m, file=sys.stderr, flush=True),
+        )
+    except AgainstError as exc:
+        raise UserError(str(exc)) from None
+    doc = {
+        "command": "simpletrack " + " ".join(sys.argv[1:]),
+        "machine_before": before,
+        "machine_after": machine(),
+        **result,
+    }
+    print(against_table(doc))
+    _write_json(args.json, doc)
+    return 0
+
+
 def _add_source_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--source",
@@ -401,9 +461,20 @@ def run_core(args: argparse.Namespace) -> int:
             f"no KITTI detections under {args.data / 'kitti'}: give --data, "
             "or --kitti-sequences 0 to skip them"
         )
-    _out_paths(args)
     if args.against is not None:
-        return _core_against(args)
+        return _against(
+            args,
+            "core",
+            [
+                *("--data", str(args.data.resolve())),
+                *("--scenes", str(args.scenes)),
+                *("--kitti-sequences", str(args.kitti_sequences)),
+                *("--sizes", args.sizes),
+                *("--sweep-frames", str(args.sweep_frames)),
+                *("--sweep-budget", repr(args.sweep_budget)),
+            ],
+        )
+    _out_paths(args)
     before = machine()
     opts = CoreOptions(
         args.data, args.scenes, args.kitti_sequences, sizes, args.sweep_frames, args.sweep_budget
@@ -426,45 +497,6 @@ def run_core(args: argparse.Namespace) -> int:
         doc["plots"] = [str(p) for p in written]
         for p in written:
             print(f"wrote {p}")
-    _write_json(args.json, doc)
-    return 0
-
-
-def _core_against(args: argparse.Namespace) -> int:
-    from simpletrack.bench.against import AgainstError, compare, table
-    from simpletrack.bench.stats import machine
-
-    if not (1 <= args.rounds <= 50):
-        raise UserError(f"--rounds {args.rounds} must be in 1..50")
-    if args.plot_dir is not None:
-        raise UserError("--plot-dir draws one side: run without --against for the plots")
-    # Options both sides' bench core has had since the first release.
-    argv = [
-        f"--data={args.data}",
-        f"--scenes={args.scenes}",
-        f"--kitti-sequences={args.kitti_sequences}",
-        f"--sizes={args.sizes}",
-        f"--sweep-frames={args.sweep_frames}",
-        f"--sweep-budget={args.sweep_budget}",
-    ]
-    before = machine()
-    try:
-        result = compare(
-            args.against,
-            argv,
-            args.rounds,
-            progress=lambda m: print(m, file=sys.stderr, flush=True),
-        )
-    except AgainstError as exc:
-        raise UserError(str(exc)) from exc
-    print(table(result))
-    doc = {
-        "benchmark": "core_against",
-        "command": "simpletrack " + " ".join(sys.argv[1:]),
-        "machine_before": before,
-        "machine_after": machine(),
-        **result,
-    }
     _write_json(args.json, doc)
     return 0
 
@@ -505,6 +537,25 @@ def run_service(args: argparse.Namespace) -> int:
 
         if not (shutil.which("py-spy") or (Path(sys.executable).parent / "py-spy").exists()):
             raise UserError("--profile needs py-spy (pip install py-spy)")
+    if args.against is not None:
+        return _against(
+            args,
+            "service",
+            [
+                *("--sensors", args.sensors),
+                *("--seconds", repr(args.seconds)),
+                *("--warmup", repr(args.warmup)),
+                *("--rate", repr(args.rate)),
+                *("--workers", str(args.workers)),
+                *("--queue-size", str(args.queue_size)),
+                *("--source", args.source),
+                *("--data", str(args.data.resolve())),
+                *("--synthetic-boxes", str(args.synthetic_boxes)),
+                *("--p99-limit", repr(args.p99_limit)),
+                *("--budget", repr(args.budget)),
+                *(("--no-echo",) if args.no_echo else ()),
+            ],
+        )
     _out_paths(args)
     opts = ServiceBenchOptions(
         sensors=sensors,
