@@ -58,6 +58,19 @@ def test_lsap_is_scipys_assignment_ties_included(seed: int) -> None:
     assert infeasible > 0  # the +inf cases include some without a full assignment
 
 
+def test_lsap_solves_large_costs_as_given_like_scipy() -> None:
+    # Shifting costs by their minimum first would round these differently: scipy takes (0, 1).
+    tie = np.array([[3.0000000000000010e15, 3.0000000000000010e15], [3.0000000000000005e15, 3e15]])
+    tie[1, 1] = 3.0000000000000010e15
+    rng = np.random.default_rng(3)
+    for cost in [tie] + [rng.random((5, 7)) * 1e3 + 3e15 for _ in range(200)]:
+        rows, cols, status = ak.lsap(cost)
+        want_rows, want_cols = linear_sum_assignment(cost)
+        assert status == 0
+        np.testing.assert_array_equal(rows, want_rows)
+        np.testing.assert_array_equal(cols, want_cols)
+
+
 @pytest.mark.parametrize("bad", [np.nan, -np.inf])
 def test_lsap_refuses_what_scipy_refuses(bad: float) -> None:
     cost = np.ones((3, 3))

@@ -3,7 +3,7 @@
 ``lsap`` is the rectangular linear sum assignment by shortest augmenting paths (D. F. Crouse,
 "On implementing 2D rectangular assignment algorithms", IEEE TAES 52(4), 2016), with the
 choices that make scipy.optimize.linear_sum_assignment's answer unique among optima: costs
-shifted by their minimum, rows added in order, the free columns scanned from the last, ties
+taken as given (no shift), rows added in order, the free columns scanned from the last, ties
 of the lowest reduced cost going to an unassigned column; a wide problem is solved transposed
 and its pairs listed by row. tests/core/test_assignment_kernels.py holds it equal to scipy.
 
@@ -116,14 +116,15 @@ def _assignment(cost: F64) -> tuple[I64, I64, int]:
         return empty, empty.copy(), 0
     wide = nr > nc
     c = cost.T.copy() if wide else cost.copy()
-    lo = np.inf
+    # No shift by the minimum: scipy (1.17) solves the costs as given, and a shift rounds
+    # large costs differently (other optima win their ties).
+    finite = False
     for x in c.ravel():
         if x != x or x == -np.inf:
             return empty, empty.copy(), INFEASIBLE
-        lo = min(lo, x)
-    if lo == np.inf:
+        finite = finite or x != np.inf
+    if not finite:
         return empty, empty.copy(), INFEASIBLE
-    c -= lo
     n = c.shape[0]
     col4row = np.empty(n, dtype=np.int64)
     if _solve(c, col4row) == INFEASIBLE:
