@@ -40,7 +40,7 @@ COPY schemas ./schemas
 COPY service ./service
 COPY clients ./clients
 # The kernels are compiled here, into numba's cache beside the installed source, so that the
-# service starts in half a second rather than compiling for ~6 s (a host whose CPU differs
+# service starts in under a second rather than compiling for ~20 s (a host whose CPU differs
 # from the builder's compiles once more at start).
 RUN "${VENV}/bin/pip" install --no-deps . \
  && "${VENV}/bin/simpletrack" serve --help > /dev/null \

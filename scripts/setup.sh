@@ -22,7 +22,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   touch "$stamp"
 fi
 # Compile the tracker's kernels now (numba caches them beside the source): the first demo,
-# service or test then loads them in about half a second instead of compiling for ~6 s.
+# service or test then loads them in under a second instead of compiling for ~20 s.
 .venv/bin/python -c "from simpletrack.core import jit; jit.preload()" \
   || echo "setup: compiling the kernels failed; they compile on first use (or run uncompiled)" >&2
 # System services used by the end-to-end tests (Prometheus); optional outside CI.
