@@ -34,6 +34,7 @@ __all__ = [
     "iou_bev",
     "l2_distance",
     "mahalanobis",
+    "overlap_flags",
 ]
 
 # Pairs per vectorised batch: bounds temporaries (tens of MB) whatever N x M is, while keeping
@@ -227,6 +228,11 @@ def distance_matrix(
     return np.asarray(1.0 - overlap(dets, preds, vertical=vertical), dtype=np.float64)
 
 
+def overlap_flags(metric: Metric) -> tuple[bool, bool]:
+    """(three_d, generalized) of an IoU-family metric, as the overlap kernels take them."""
+    return metric in (Metric.GIOU_3D, Metric.IOU_3D), metric in (Metric.GIOU_3D, Metric.GIOU_BEV)
+
+
 def _checked(index: I64, n: int, side: str) -> I64:
     """``index`` with numpy's negative indices resolved; IndexError outside -n..n-1."""
     lo, hi = int(index.min()), int(index.max())
@@ -268,8 +274,7 @@ def distance_pairs(
         d[:, YAW] = fold_yaw(d[:, YAW])
         q = np.einsum("pi,pi->p", np.einsum("pj,pij->pi", d, s_inv[ib]), d)
         return np.asarray(np.sqrt(np.maximum(q, 0.0)), dtype=np.float64)
-    three_d = metric in (Metric.GIOU_3D, Metric.IOU_3D)
-    generalized = metric in (Metric.GIOU_3D, Metric.GIOU_BEV)
+    three_d, generalized = overlap_flags(metric)
     exact = vertical is VerticalOverlap.EXACT
     overlap = kernels.overlap_pairs(pa, pb, ia, ib, three_d, generalized, exact)
     return np.asarray(1.0 - overlap, dtype=np.float64)

@@ -66,8 +66,7 @@ class Tracker:
         self._gate_distance = np.array(
             [max(c.widest_max_distance, c.stage2_max_distance) for c in cc]
         )
-        self._far_cost = [far_cost(c) for c in cc]
-        self._far_cost_array = np.array(self._far_cost, dtype=np.float64)
+        self._far_cost = np.array([far_cost(c) for c in cc], dtype=np.float64)
         self._hungarian = np.array([c.matcher is Matcher.HUNGARIAN for c in cc], dtype=bool)
         self._widened = np.array([c.gate_widening > 0 for c in cc], dtype=bool)
         self._max_distance = np.array([c.max_distance for c in cc])
@@ -344,7 +343,7 @@ class Tracker:
                 self._hungarian,
                 self._widened,
                 reach,
-                self._far_cost_array,
+                self._far_cost,
             )
             if status != INFEASIBLE:
                 return md_c, mt_c, um_c
@@ -631,8 +630,7 @@ def _overlap_kind(metric: Metric) -> int:
     """How core/pair_kernels.py reads a class's metric (NOT_OVERLAP: computed in numpy)."""
     if metric in (Metric.L2, Metric.MAHALANOBIS):
         return NOT_OVERLAP
-    three_d = metric in (Metric.GIOU_3D, Metric.IOU_3D)
-    return overlap_kind(three_d, metric in (Metric.GIOU_3D, Metric.GIOU_BEV))
+    return overlap_kind(*geometry.overlap_flags(metric))
 
 
 def _or(value: float | None, off: float) -> float:
