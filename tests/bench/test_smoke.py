@@ -70,7 +70,7 @@ def test_stage_shims_reach_every_stage_the_tracker_uses() -> None:
     assert timer.calls["nms"] == len(frames)
     assert timer.calls["predict"] == len(frames)
     # From the second frame on there are tracks to match and correct.
-    for stage in ("cost_matrix", "assignment", "update", "lifecycle"):
+    for stage in ("cost_matrix", "assignment", "advance"):
         assert timer.calls[stage] >= len(frames) - 1, (stage, timer.calls)
     assert set(timer.seconds) == set(STAGES)
     # Removed on exit: the tracker runs unshimmed again.
@@ -84,7 +84,7 @@ def test_stage_shims_reach_every_stage_the_tracker_uses() -> None:
     [
         (("cost_matrix", "simpletrack.core.tracker", "Tracker._pair_distances"), "does not exist"),
         (("nms", "simpletrack.core.nowhere", "nms"), "no module simpletrack.core.nowhere"),
-        (("update", "simpletrack.core.config", "PRESETS"), "not a plain function"),
+        (("advance", "simpletrack.core.config", "PRESETS"), "not a plain function"),
     ],
 )
 def test_a_stage_whose_target_is_missing_fails_naming_stage_and_target(

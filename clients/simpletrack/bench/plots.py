@@ -16,9 +16,7 @@ STAGE_COLOURS = {
     "predict": "tab:cyan",
     "cost_matrix": "tab:red",
     "assignment": "tab:orange",
-    "update": "tab:green",
-    "lifecycle": "tab:purple",
-    "output": "tab:olive",
+    "advance": "tab:green",
     OTHER: "tab:gray",
 }
 

@@ -30,11 +30,9 @@ TARGETS: tuple[tuple[str, str, str], ...] = (
     ("cost_matrix", "simpletrack.core.geometry", "distance_pairs"),
     # Stage 1 whole: a dense frame's is one compiled call (core/assignment_kernels.py).
     ("assignment", "simpletrack.core.tracker", "Tracker._stage1"),
-    ("update", "simpletrack.core.motion", "KalmanFilter.update"),
-    ("update", "simpletrack.core.motion", "ConstantVelocity.update"),
-    ("lifecycle", "simpletrack.core.tracker", "Tracker._transition"),
-    ("lifecycle", "simpletrack.core.tracker", "Tracker._births"),
-    ("output", "simpletrack.core.tracker", "Tracker._output"),
+    # Filter updates, scores, life cycle, births, deaths and output: one compiled call
+    # (core/advance_kernels.py).
+    ("advance", "simpletrack.core.tracker", "Tracker._advance"),
 )
 STAGES: tuple[str, ...] = tuple(dict.fromkeys(stage for stage, _, _ in TARGETS))
 OTHER = "other"  # step time outside every shimmed function: glue, copies, masks

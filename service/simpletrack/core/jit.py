@@ -37,6 +37,7 @@ _KERNEL_MODULES = (
     "simpletrack.core.pair_kernels",
     "simpletrack.core.kalman_kernels",
     "simpletrack.core.assignment_kernels",
+    "simpletrack.core.advance_kernels",
 )
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"

@@ -19,11 +19,11 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.jit import inline, kernel
+from simpletrack.core.jit import helper, inline, kernel
 
 F64 = npt.NDArray[np.float64]
 
-__all__ = ["predict_all", "update_all"]
+__all__ = ["predict_all", "update_all", "update_into", "wrap_once"]
 
 _YAW = 3
 _Z = 7  # measured dimensions
@@ -35,7 +35,7 @@ _UPDATE = "Tuple((float64[:, ::1], float64[:, :, ::1]))(float64[:, :], float64[:
 
 
 @inline
-def _wrap_once(a: float) -> float:
+def wrap_once(a: float) -> float:
     """motion._wrap_once on one value: into [-pi, pi) for |a| < 3 pi."""
     if a >= _PI:
         a = a - 2 * _PI
@@ -47,8 +47,8 @@ def _wrap_once(a: float) -> float:
 @inline
 def _align_yaw(predicted: float, measured: float) -> float:
     """motion.align_yaw on one pair (same operations in the same order)."""
-    pred = _wrap_once(predicted)
-    meas = _wrap_once(measured)
+    pred = wrap_once(predicted)
+    meas = wrap_once(measured)
     diff = abs(meas - pred)
     out = pred
     if diff > _PI / 2 and diff < 3 * _PI / 2:
@@ -91,6 +91,14 @@ def update_all(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
     n = x.shape[0]
     x_out = np.empty((n, _X))
     p_out = np.empty((n, _X, _X))
+    update_into(x, p, z, r, x_out, p_out)
+    return x_out, p_out
+
+
+@helper
+def update_into(x: F64, p: F64, z: F64, r: F64, x_out: F64, p_out: F64) -> None:
+    """``update_all`` writing into ``x_out`` and ``p_out`` (callable from other kernels)."""
+    n = x.shape[0]
     y = np.empty(_Z)
     aug = np.empty((_Z, 2 * _Z))  # [S | I] -> [I | S^-1]
     k = np.empty((_X, _Z))
@@ -100,7 +108,7 @@ def update_all(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
         yaw = _align_yaw(x[t, _YAW], z[t, _YAW])
         for i in range(_Z):
             if i == _YAW:
-                y[i] = _wrap_once(z[t, i]) - yaw
+                y[i] = wrap_once(z[t, i]) - yaw
             else:
                 y[i] = z[t, i] - x[t, i]
         for i in range(_Z):
@@ -134,7 +142,7 @@ def update_all(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
             for m in range(_Z):
                 acc += k[i, m] * y[m]
             x_out[t, i] = (yaw if i == _YAW else x[t, i]) + acc
-        x_out[t, _YAW] = _wrap_once(x_out[t, _YAW])
+        x_out[t, _YAW] = wrap_once(x_out[t, _YAW])
         for i in range(_X):
             for j in range(_Z):
                 acc = 0.0
@@ -157,4 +165,3 @@ def update_all(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
                 v = (ap[i, j] - a_kt) + krk
                 p_out[t, i, j] = v
                 p_out[t, j, i] = v
-    return x_out, p_out

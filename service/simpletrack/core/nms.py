@@ -43,17 +43,15 @@ def nms(
     if len(boxes) == 0:
         return np.zeros(0, dtype=np.int64)
     cls = boxes.cls
-    codes = np.unique(cls)
-    if codes[0] < 0 or codes[-1] >= thr.size:
-        raise ValueError(
-            f"class codes span {codes[0]}..{codes[-1]} but only {thr.size} NMS thresholds given"
-        )
+    lo, hi = int(cls.min()), int(cls.max())
+    if lo < 0 or hi >= thr.size:
+        raise ValueError(f"class codes span {lo}..{hi} but only {thr.size} NMS thresholds given")
     if tie_order is TieOrder.STABLE:
         # Ascending class, then descending score, ties in input order (what descending_stable
         # gives class by class): lexsort is stable.
         order = np.lexsort((-boxes.score, cls)).astype(np.int64)
     else:
-        members = [np.flatnonzero(cls == c) for c in codes]
+        members = [np.flatnonzero(cls == c) for c in np.unique(cls)]
         order = np.concatenate([m[descending_reference(boxes.score[m])] for m in members])
     per_class = np.bincount(cls)
     exact = vertical is VerticalOverlap.EXACT

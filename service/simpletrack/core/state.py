@@ -71,10 +71,19 @@ class TrackTable:
         missing = [name for name in _FIELDS if name not in obj and name not in _ADDED]
         if missing:
             raise ValueError(f"tracker state lacks {', '.join(missing)}")
-        return cls(*(_unpack_array(obj[name if name in obj else _ADDED[name]]) for name in _FIELDS))
+        # In the dtypes the compiled step is typed for, whatever wrote the snapshot.
+        return cls(
+            *(
+                _unpack_array(obj[name if name in obj else _ADDED[name]]).astype(
+                    _DTYPES[name], copy=False
+                )
+                for name in _FIELDS
+            )
+        )
 
 
 _FIELDS = tuple(f.name for f in fields(TrackTable))
+_DTYPES = {name: getattr(TrackTable.empty(), name).dtype for name in _FIELDS}
 # Columns added after states were first written, each with the column an older state fills
 # it from: the same format number then still reads every snapshot a deployment holds.
 # A state without birth stamps counts a track's age in seconds from its last update: a lower

@@ -13,6 +13,20 @@ import numpy as np
 import numpy.typing as npt
 
 from simpletrack.core import gate, geometry
+from simpletrack.core.advance_kernels import (
+    COAST_OUTPUT,
+    DELETE_BELOW,
+    FUSED,
+    MAX_AGE,
+    MAX_POSITION_STD,
+    MIN_HITS,
+    N_OPTIONS,
+    POLICY_NUSCENES,
+    POLICY_PAPER,
+    POLICY_REFERENCE,
+    SCORE_DECAY,
+    advance,
+)
 from simpletrack.core.assignment_kernels import INFEASIBLE, stage1_dense
 from simpletrack.core.association import Assignment, assign, assign_pairs
 from simpletrack.core.boxes import F64, YAW, Boxes, transform_boxes
@@ -26,8 +40,8 @@ from simpletrack.core.config import (
     TrackScore,
     VerticalOverlap,
 )
-from simpletrack.core.frames import POS_VEL, Frame, Tracks
-from simpletrack.core.lifecycle import TrackState, UpdateKind
+from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.lifecycle import UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
 from simpletrack.core.nms import drop_degenerate, nms
 from simpletrack.core.pair_kernels import NOT_OVERLAP, class_table, overlap_kind
@@ -36,6 +50,12 @@ from simpletrack.core.reassociation import reassociate
 from simpletrack.core.state import TrackTable, pack, unpack
 
 STATE_FORMAT = 1
+_POLICY_CODES = {
+    OutputPolicy.PAPER: POLICY_PAPER,
+    OutputPolicy.REFERENCE: POLICY_REFERENCE,
+    OutputPolicy.NUSCENES: POLICY_NUSCENES,
+}
+_NO_VELOCITY = np.zeros((0, 2))
 _METRICS = tuple(Metric)
 I64 = npt.NDArray[np.int64]
 
@@ -51,7 +71,6 @@ class Tracker:
         cc = [config.for_code(c) for c in codes]
         self._nms_iou = np.array([config.for_code(c).nms_iou for c in codes])
         self._score_high = np.array([config.for_code(c).score_high for c in codes])
-        self._min_hits = np.array([config.for_code(c).min_hits for c in codes], dtype=np.int64)
         self._max_age = np.array([config.for_code(c).max_age for c in codes], dtype=np.int64)
         self._score_low = np.array([config.for_code(c).score_low for c in codes])
         self._two_stage = np.array([config.for_code(c).two_stage for c in codes], dtype=bool)
@@ -71,12 +90,18 @@ class Tracker:
         self._widened = np.array([c.gate_widening > 0 for c in cc], dtype=bool)
         self._max_distance = np.array([c.max_distance for c in cc])
         self._gate_widening = np.array([c.gate_widening for c in cc])
-        self._fused = np.array([c.track_score is TrackScore.FUSED for c in cc], dtype=bool)
-        self._score_decay = np.array([c.score_decay for c in cc])
         # Off is a bound nothing crosses: -inf for a score, +inf for a deviation.
-        self._delete_below = np.array([_or(c.delete_below, -np.inf) for c in cc])
-        self._max_position_std = np.array([_or(c.max_position_std, np.inf) for c in cc])
-        self._coast_output = np.array([c.coast_output for c in cc], dtype=np.int64)
+        options = np.zeros((len(cc), N_OPTIONS))
+        for code, c in enumerate(cc):
+            options[code, FUSED] = c.track_score is TrackScore.FUSED
+            options[code, SCORE_DECAY] = c.score_decay
+            options[code, MIN_HITS] = c.min_hits
+            options[code, MAX_AGE] = c.max_age
+            options[code, DELETE_BELOW] = _or(c.delete_below, -np.inf)
+            options[code, MAX_POSITION_STD] = _or(c.max_position_std, np.inf)
+            options[code, COAST_OUTPUT] = c.coast_output
+        self._class_options = options
+        self._policy = _POLICY_CODES[config.output]
         self.reset()
 
     def reset(self) -> None:
@@ -99,10 +124,6 @@ class Tracker:
 
         x_pred, p_pred = self._predict(tr, frame.stamp)
         pred_box = predicted_boxes(x_pred)
-        age, tsu = tr.age, tr.time_since_update
-        if key:
-            age, tsu = age + 1, tsu + 1
-        score = self._decayed(tr)
 
         # Stage 1: detections over the (per-class or non-key) high threshold.
         high = (
@@ -136,70 +157,17 @@ class Tracker:
             )
             update[matched_trk] = UpdateKind.MATCHED
 
-        # Filter corrections: matched with their detection, extended with their own prediction.
-        corrected = np.concatenate([matched_trk, extended])
-        meas = np.concatenate([dets.params[matched_det], pred_box[extended]])
-        vel = None
-        if dets.velocity is not None:
-            vel = np.concatenate([dets.velocity[matched_det], x_pred[extended, 7:9]])
-        x, p, t_update = tr.x.copy(), tr.p.copy(), tr.t_update.copy()
-        if corrected.size:
-            if self.config.motion is MotionModel.KALMAN:
-                x[corrected], p[corrected] = self._kf.update(
-                    x_pred[corrected], p_pred[corrected], meas
-                )
-            else:
-                x[corrected] = self._cv.update(meas, vel, x_pred[corrected])
-            t_update[corrected] = frame.stamp
-        score[matched_trk] = self._matched_score(
-            dets.score[matched_det], score[matched_trk], tr.cls[matched_trk]
-        )
-        match_score = tr.match_score.copy()
-        match_score[matched_trk] = score[matched_trk]
-
-        hits = tr.hits.copy()
-        state = tr.state.copy()
-        if key:
-            touched = update != UpdateKind.COASTED
-            hits[touched] += 1
-            tsu = np.where(touched, 0, tsu).astype(np.int32)
-            state = self._transition(tr.cls, state, hits, tsu)
-            state = self._option_deaths(tr.cls, state, score, update, p_pred)
-
-        out_box = pred_box.copy()
-        out_box[corrected] = x[corrected, :7]
-        # The covariance of the box reported: corrected where the box is, else predicted.
-        out_p = p_pred.copy()
-        out_p[corrected] = p[corrected]
-        tr = TrackTable(
-            ids=tr.ids,
-            cls=tr.cls,
-            x=x,
-            p=p,
-            t_update=t_update,
-            score=score,
-            hits=hits.astype(np.int32),
-            age=age.astype(np.int32),
-            time_since_update=tsu.astype(np.int32),
-            state=state,
-            update=update,
-            out_box=out_box,
-            match_score=match_score,
-            t_birth=tr.t_birth,
-        )
-        if key:
-            born = self._births(dets.take(unmatched_det), frame.stamp)
-            tr = tr.concat(born)
-            out_p = np.concatenate([out_p, born.p])
-            alive = tr.state != TrackState.DEAD
-            tr, out_p = tr.take(alive), out_p[alive]
-        self.tracks = tr
-        self.last_stamp = frame.stamp
-        return self._output(tr, out_p, frame.stamp)
+        return self._advance(
+            tr, x_pred, p_pred, pred_box, update, matched_det, matched_trk, extended,
+            unmatched_det, dets, key, frame.stamp,
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ stages
     def _preprocess(self, frame: Frame) -> Boxes:
-        boxes = frame.boxes.take(drop_degenerate(frame.boxes))
+        boxes = frame.boxes
+        keep = drop_degenerate(boxes)
+        if keep.size < len(boxes):
+            boxes = boxes.take(keep)
         if frame.pose is not None:
             boxes = transform_boxes(boxes, frame.pose)
         return boxes.take(
@@ -330,7 +298,9 @@ class Tracker:
         is solved on its full block, as it always was; a gated one from its listed pairs.
         ``reach`` is each track's threshold (max_distance unless gate_widening is on)."""
         d_cls = det_cls[cand]
-        codes = np.unique(np.concatenate([d_cls, trk_cls])).astype(np.int64)
+        n_cls = len(self.config.classes)
+        present = np.bincount(d_cls, minlength=n_cls) + np.bincount(trk_cls, minlength=n_cls)
+        codes = np.flatnonzero(present).astype(np.int64)  # ascending, as np.unique
         if table.matrix is not None:
             md_c, mt_c, um_c, status = stage1_dense(
                 table.matrix,
@@ -482,121 +452,58 @@ class Tracker:
             unmatched_det[still],
         )
 
-    def _transition(
+    def _advance(
         self,
-        cls: npt.NDArray[np.int32],
-        state: npt.NDArray[np.int8],
-        hits: npt.NDArray[np.int32],
-        tsu: npt.NDArray[np.int32],
-    ) -> npt.NDArray[np.int8]:
-        min_hits, max_age = self._min_hits[cls], self._max_age[cls]
-        tentative = state == TrackState.TENTATIVE
-        promote = tentative & ((hits >= min_hits) | (self.frame_count <= min_hits))
-        dies = (tsu >= max_age) & ~promote
-        out = state.copy()
-        out[promote] = TrackState.CONFIRMED
-        out[dies] = TrackState.DEAD
-        return out
-
-    def _option_deaths(
-        self,
-        cls: npt.NDArray[np.int32],
-        state: npt.NDArray[np.int8],
-        score: F64,
-        update: npt.NDArray[np.int8],
+        tr: TrackTable,
+        x_pred: F64,
         p_pred: F64,
-    ) -> npt.NDArray[np.int8]:
-        """Deaths besides max_age: a confirmed track scored under delete_below; a track
-        without a stage-1 match whose predicted position is too uncertain (max_position_std)."""
-        dies = (state == TrackState.CONFIRMED) & (score < self._delete_below[cls])
-        limit = self._max_position_std[cls]
-        if np.isfinite(limit).any():
-            std = np.sqrt(p_pred[:, 0, 0] + p_pred[:, 1, 1])
-            dies |= (update != UpdateKind.MATCHED) & (std > limit)
-        if not dies.any():
-            return state
-        out = state.copy()
-        out[dies] = TrackState.DEAD
-        return out
-
-    def _decayed(self, tr: TrackTable) -> F64:
-        """Every track's score before this frame's matches: x coast_score_decay, or with
-        the fused track score minus score_decay (clipped at 0)."""
-        score = tr.score * self.config.coast_score_decay
-        fused = self._fused[tr.cls]
-        if fused.any():
-            dropped = np.maximum(tr.score - self._score_decay[tr.cls], 0.0)
-            score = np.where(fused, dropped, score)
-        return np.asarray(score, dtype=np.float64)
-
-    def _matched_score(self, s_det: F64, s_trk: F64, cls: npt.NDArray[np.int32]) -> F64:
-        """A matched track's new score: its detection's, or fused with its decayed one."""
-        fused = self._fused[cls]
-        if not fused.any():
-            return s_det
-        return np.asarray(np.where(fused, 1.0 - (1.0 - s_det) * (1.0 - s_trk), s_det))
-
-    def _births(self, dets: Boxes, stamp: float) -> TrackTable:
-        n = len(dets)
-        ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
-        self.next_id += n
-        min_hits = self._min_hits[dets.cls]
-        confirmed = (min_hits == 0) | (self.frame_count <= min_hits)
-        if self.config.motion is MotionModel.KALMAN:
-            x, p = self._kf.initiate(dets.params)
-        else:
-            x = self._cv.initiate(dets.params, dets.velocity)
-            p = np.zeros((n, *self._kf.p0.shape))
-        return TrackTable(
-            ids=ids,
-            cls=dets.cls.astype(np.int32),
-            x=x,
-            p=p,
-            t_update=np.full(n, stamp),
-            score=dets.score.copy(),
-            hits=np.ones(n, dtype=np.int32),
-            age=np.zeros(n, dtype=np.int32),
-            time_since_update=np.zeros(n, dtype=np.int32),
-            state=np.where(confirmed, TrackState.CONFIRMED, TrackState.TENTATIVE).astype(np.int8),
-            update=np.full(n, UpdateKind.MATCHED, dtype=np.int8),
-            out_box=dets.params.copy(),
-            match_score=dets.score.copy(),
-            t_birth=np.full(n, stamp),
-        )
-
-    def _output(self, tr: TrackTable, out_p: F64, stamp: float) -> Tracks:
-        """The reported tracks; ``out_p`` holds each track's covariance of its reported box."""
-        policy = self.config.output
-        matched = tr.update == UpdateKind.MATCHED
-        confirmed = tr.state == TrackState.CONFIRMED
-        if policy is OutputPolicy.NUSCENES:
-            keep = np.ones(len(tr), dtype=bool)
-        elif policy is OutputPolicy.REFERENCE:
-            keep = (tr.state == TrackState.TENTATIVE) | (confirmed & matched)
-        else:
-            keep = confirmed & matched
-        # coast_output: a confirmed track without a match, within its window, is written
-        # with the score of its last match.
-        window = self._coast_output[tr.cls]
-        coast = confirmed & ~matched & (window > 0) & (tr.time_since_update <= window)
-        keep |= coast
-        score = np.where(coast, tr.match_score, tr.score)[keep]
-        t = tr.take(keep)
-        covariance = None
-        if self.config.motion is MotionModel.KALMAN:
-            covariance = out_p[keep][:, POS_VEL][:, :, POS_VEL]
+        pred_box: F64,
+        update: npt.NDArray[np.int8],
+        matched_det: I64,
+        matched_trk: I64,
+        extended: I64,
+        unmatched_det: I64,
+        dets: Boxes,
+        key: bool,
+        stamp: float,
+    ) -> Tracks:
+        """Corrections, scores, life cycle, births, deaths and the output policy, in one
+        compiled call (core/advance_kernels.py); the tracks after this frame are kept."""
+        kalman = self.config.motion is MotionModel.KALMAN
+        velocity = dets.velocity
+        (
+            t_ids, t_cls, t_x, t_p, t_update, t_score, t_hits, t_age, t_tsu, t_state, t_upd,
+            t_box, t_match, t_birth,
+            ids, box, score, cls, vel, state, upd, hits, age, tsu, cov, age_s, tsu_s,
+        ) = advance(
+            tr.ids, tr.cls, tr.x, tr.p, tr.t_update, tr.score, tr.hits, tr.age,
+            tr.time_since_update, tr.state, tr.match_score, tr.t_birth,
+            x_pred, p_pred, pred_box, update,
+            matched_det, matched_trk, extended, unmatched_det,
+            dets.params, dets.score, dets.cls, _NO_VELOCITY if velocity is None else velocity,
+            key, kalman, velocity is not None, self._policy, self.frame_count, self.next_id,
+            float(stamp), self.config.coast_score_decay,
+            self._class_options, self._kf.r, self._kf.p0,
+        )  # fmt: skip
+        self.tracks = TrackTable(
+            t_ids, t_cls, t_x, t_p, t_update, t_score, t_hits, t_age, t_tsu, t_state, t_upd,
+            t_box, t_match, t_birth,
+        )  # fmt: skip
+        if key:
+            self.next_id += int(unmatched_det.size)
+        self.last_stamp = stamp
         return Tracks(
-            ids=t.ids,
-            boxes=Boxes(params=t.out_box, score=score, cls=t.cls),
-            velocity=t.x[:, 7:10].copy(),
-            state=t.state,
-            update=t.update,
-            hits=t.hits,
-            age=t.age,
-            time_since_update=t.time_since_update,
-            covariance=covariance,
-            age_s=stamp - t.t_birth,
-            time_since_update_s=stamp - t.t_update,
+            ids=ids,
+            boxes=Boxes(params=box, score=score, cls=cls),
+            velocity=vel,
+            state=state,
+            update=upd,
+            hits=hits,
+            age=age,
+            time_since_update=tsu,
+            covariance=cov if kalman else None,
+            age_s=age_s,
+            time_since_update_s=tsu_s,
         )
 
     # ------------------------------------------------------------------ persistence

@@ -1,0 +1,328 @@
+"""The rest of a frame after association, compiled in one call (``Tracker.step``'s tail).
+
+``advance`` takes the tracks as they were, their prediction and this frame's association, and
+returns the tracks after the frame and what the frame reports:
+
+1. scores decayed (x coast_score_decay, or fused: minus score_decay, clipped at 0);
+2. filter corrections: stage-1 matches with their detection, stage-2 extensions with their own
+   prediction (Kalman: ``kalman_kernels.update_into``; constant velocity: the detection's box
+   and velocity replace the prediction's);
+3. matched scores (the detection's, or fused with the decayed one);
+4. on a key frame: hits, ages, the life cycle (min_hits, max_age, delete_below,
+   max_position_std), births of the unmatched detections, and the dead removed;
+5. the output policy, with coast_output.
+
+Every step is the same scalar arithmetic, in the same order, as the numpy code it replaced:
+outputs are bit-identical (tests/core/test_advance_kernels.py runs both ways).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from simpletrack.core.jit import kernel
+from simpletrack.core.kalman_kernels import update_into, wrap_once
+
+__all__ = [
+    "COAST_OUTPUT",
+    "DELETE_BELOW",
+    "FUSED",
+    "MAX_AGE",
+    "MAX_POSITION_STD",
+    "MIN_HITS",
+    "N_OPTIONS",
+    "POLICY_NUSCENES",
+    "POLICY_PAPER",
+    "POLICY_REFERENCE",
+    "SCORE_DECAY",
+    "advance",
+]
+
+# Columns of the per-class option table (Tracker builds it once from its config).
+FUSED, SCORE_DECAY, MIN_HITS, MAX_AGE, DELETE_BELOW, MAX_POSITION_STD, COAST_OUTPUT = range(7)
+N_OPTIONS = 7
+# Output policies (config.OutputPolicy), as the kernel reads them.
+POLICY_PAPER, POLICY_REFERENCE, POLICY_NUSCENES = range(3)
+
+# lifecycle.TrackState and UpdateKind codes (kernels cannot read enums).
+_TENTATIVE, _CONFIRMED, _DEAD = 0, 1, 2
+_COASTED, _MATCHED = 0, 1
+_YAW = 3
+_X = 10
+_POS_VEL = (0, 1, 2, 7, 8, 9)  # frames.POS_VEL
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+I32 = npt.NDArray[np.int32]
+I8 = npt.NDArray[np.int8]
+
+_TABLE_OUT = (
+    "int64[::1], int32[::1], float64[:, ::1], float64[:, :, ::1], float64[::1], float64[::1],"
+    " int32[::1], int32[::1], int32[::1], int8[::1], int8[::1], float64[:, ::1], float64[::1],"
+    " float64[::1]"
+)
+_TRACKS_OUT = (
+    "int64[::1], float64[:, ::1], float64[::1], int32[::1], float64[:, ::1], int8[::1],"
+    " int8[::1], int32[::1], int32[::1], int32[::1], float64[:, :, ::1], float64[::1],"
+    " float64[::1]"
+)
+_ADVANCE = (
+    f"Tuple(({_TABLE_OUT}, {_TRACKS_OUT}))"
+    "(int64[:], int32[:], float64[:, :], float64[:, :, :], float64[:], float64[:], int32[:],"
+    " int32[:], int32[:], int8[:], float64[:], float64[:],"
+    " float64[:, :], float64[:, :, :], float64[:, :], int8[:],"
+    " int64[:], int64[:], int64[:], int64[:],"
+    " float64[:, :], float64[:], int32[:], float64[:, :],"
+    " boolean, boolean, boolean, int64, int64, int64, float64, float64,"
+    " float64[:, :], float64[:, :], float64[:, :])"
+)
+
+
+@kernel(_ADVANCE)
+def advance(
+    ids: I64,
+    cls: I32,
+    x: F64,
+    p: F64,
+    t_update: F64,
+    score: F64,
+    hits: I32,
+    age: I32,
+    tsu: I32,
+    state: I8,
+    match_score: F64,
+    t_birth: F64,
+    x_pred: F64,
+    p_pred: F64,
+    pred_box: F64,
+    update: I8,
+    matched_det: I64,
+    matched_trk: I64,
+    extended: I64,
+    unmatched_det: I64,
+    d_params: F64,
+    d_score: F64,
+    d_cls: I32,
+    d_velocity: F64,
+    key: bool,
+    kalman: bool,
+    has_velocity: bool,
+    policy: int,
+    frame_count: int,
+    next_id: int,
+    stamp: float,
+    coast_decay: float,
+    options: F64,
+    r: F64,
+    p0: F64,
+) -> tuple[
+    I64, I32, F64, F64, F64, F64, I32, I32, I32, I8, I8, F64, F64, F64,
+    I64, F64, F64, I32, F64, I8, I8, I32, I32, I32, F64, F64, F64,
+]:  # fmt: skip
+    """The track table after this frame (TrackTable's 14 columns, in order), then the reported
+    tracks: ids, boxes, scores, classes, velocities, states, updates, hits, ages,
+    time_since_update, covariances over POS_VEL ((K, 6, 6); (0, 6, 6) without Kalman),
+    age_s, time_since_update_s. ``update`` is this frame's UpdateKind per track; births (key
+    frames only) take ids from ``next_id`` on, in ``unmatched_det``'s order."""
+    n = ids.shape[0]
+    n_m = matched_trk.shape[0]
+    n_c = n_m + extended.shape[0]
+
+    s = np.empty(n)
+    for t in range(n):
+        c = cls[t]
+        v = score[t] * coast_decay
+        if options[c, FUSED] != 0.0:
+            v = score[t] - options[c, SCORE_DECAY]
+            if not (v >= 0.0 or v != v):  # np.maximum(v, 0.0): NaN stays NaN
+                v = 0.0
+        s[t] = v
+
+    xn = x.copy()
+    pn = p.copy()
+    tu = t_update.copy()
+    rows = np.empty(n_c, dtype=np.int64)
+    for k in range(n_c):
+        rows[k] = matched_trk[k] if k < n_m else extended[k - n_m]
+    if n_c > 0:
+        xc = np.empty((n_c, _X))
+        pc = np.empty((n_c, _X, _X))
+        zc = np.empty((n_c, 7))
+        for k in range(n_c):
+            t = rows[k]
+            xc[k] = x_pred[t]
+            pc[k] = p_pred[t]
+            zc[k] = d_params[matched_det[k]] if k < n_m else pred_box[t]
+        if kalman:
+            xo = np.empty((n_c, _X))
+            po = np.empty((n_c, _X, _X))
+            update_into(xc, pc, zc, r, xo, po)
+            for k in range(n_c):
+                xn[rows[k]] = xo[k]
+                pn[rows[k]] = po[k]
+        else:
+            for k in range(n_c):
+                t = rows[k]
+                xn[t] = xc[k]
+                xn[t, :7] = zc[k]
+                xn[t, _YAW] = wrap_once(xn[t, _YAW])
+                if has_velocity:
+                    if k < n_m:
+                        xn[t, 7:9] = d_velocity[matched_det[k]]
+                    else:
+                        xn[t, 7:9] = x_pred[t, 7:9]
+        for k in range(n_c):
+            tu[rows[k]] = stamp
+
+    ms = match_score.copy()
+    for k in range(n_m):
+        t = matched_trk[k]
+        sd = d_score[matched_det[k]]
+        if options[cls[t], FUSED] != 0.0:
+            s[t] = 1.0 - (1.0 - sd) * (1.0 - s[t])
+        else:
+            s[t] = sd
+        ms[t] = s[t]
+
+    hi = hits.copy()
+    ag = age.copy()
+    ts = tsu.copy()
+    st = state.copy()
+    if key:
+        for t in range(n):
+            c = cls[t]
+            ag[t] += 1
+            ts[t] += 1
+            if update[t] != _COASTED:
+                hi[t] += 1
+                ts[t] = 0
+            min_hits = options[c, MIN_HITS]
+            promote = st[t] == _TENTATIVE and (hi[t] >= min_hits or frame_count <= min_hits)
+            if promote:
+                st[t] = _CONFIRMED
+            elif ts[t] >= options[c, MAX_AGE]:
+                st[t] = _DEAD
+            if st[t] == _CONFIRMED and s[t] < options[c, DELETE_BELOW]:
+                st[t] = _DEAD
+            limit = options[c, MAX_POSITION_STD]
+            std = np.sqrt(p_pred[t, 0, 0] + p_pred[t, 1, 1]) if math.isfinite(limit) else 0.0
+            if update[t] != _MATCHED and std > limit:
+                st[t] = _DEAD
+
+    ob = pred_box.copy()
+    op = p_pred.copy()
+    for k in range(n_c):
+        t = rows[k]
+        ob[t] = xn[t, :7]
+        op[t] = pn[t]
+
+    n_born = unmatched_det.shape[0] if key else 0
+    alive = np.empty(n, dtype=np.bool_)
+    n_alive = 0
+    for t in range(n):
+        alive[t] = not key or st[t] != _DEAD
+        if alive[t]:
+            n_alive += 1
+    m = n_alive + n_born
+    o_ids = np.empty(m, dtype=np.int64)
+    o_cls = np.empty(m, dtype=np.int32)
+    o_x = np.zeros((m, _X))
+    o_p = np.zeros((m, _X, _X))
+    o_tu = np.empty(m)
+    o_s = np.empty(m)
+    o_hi = np.empty(m, dtype=np.int32)
+    o_ag = np.empty(m, dtype=np.int32)
+    o_ts = np.empty(m, dtype=np.int32)
+    o_st = np.empty(m, dtype=np.int8)
+    o_up = np.empty(m, dtype=np.int8)
+    o_ob = np.empty((m, 7))
+    o_ms = np.empty(m)
+    o_tb = np.empty(m)
+    o_op = np.zeros((m, _X, _X))  # each row's covariance of its reported box
+    j = 0
+    for t in range(n):
+        if not alive[t]:
+            continue
+        o_ids[j], o_cls[j], o_tu[j], o_s[j] = ids[t], cls[t], tu[t], s[t]
+        o_hi[j], o_ag[j], o_ts[j], o_st[j], o_up[j] = hi[t], ag[t], ts[t], st[t], update[t]
+        o_x[j] = xn[t]
+        o_p[j] = pn[t]
+        o_ob[j] = ob[t]
+        o_ms[j], o_tb[j] = ms[t], t_birth[t]
+        o_op[j] = op[t]
+        j += 1
+    for b in range(n_born):
+        u = unmatched_det[b]
+        c = d_cls[u]
+        min_hits = options[c, MIN_HITS]
+        o_ids[j] = next_id + b
+        o_cls[j] = c
+        o_x[j, :7] = d_params[u]
+        if kalman:
+            o_p[j] = p0
+        elif has_velocity:
+            o_x[j, 7:9] = d_velocity[u]
+        o_tu[j] = stamp
+        o_s[j] = d_score[u]
+        o_hi[j], o_ag[j], o_ts[j] = 1, 0, 0
+        o_st[j] = _CONFIRMED if (min_hits == 0 or frame_count <= min_hits) else _TENTATIVE
+        o_up[j] = _MATCHED
+        o_ob[j] = d_params[u]
+        o_ms[j] = d_score[u]
+        o_tb[j] = stamp
+        o_op[j] = o_p[j]
+        j += 1
+
+    keep = np.empty(m, dtype=np.bool_)
+    coast = np.empty(m, dtype=np.bool_)
+    k_out = 0
+    for j in range(m):
+        matched = o_up[j] == _MATCHED
+        confirmed = o_st[j] == _CONFIRMED
+        if policy == POLICY_NUSCENES:
+            kp = True
+        elif policy == POLICY_REFERENCE:
+            kp = o_st[j] == _TENTATIVE or (confirmed and matched)
+        else:
+            kp = confirmed and matched
+        window = options[o_cls[j], COAST_OUTPUT]
+        coast[j] = confirmed and not matched and window > 0 and o_ts[j] <= window
+        keep[j] = kp or coast[j]
+        if keep[j]:
+            k_out += 1
+    r_ids = np.empty(k_out, dtype=np.int64)
+    r_box = np.empty((k_out, 7))
+    r_s = np.empty(k_out)
+    r_cls = np.empty(k_out, dtype=np.int32)
+    r_vel = np.empty((k_out, 3))
+    r_st = np.empty(k_out, dtype=np.int8)
+    r_up = np.empty(k_out, dtype=np.int8)
+    r_hi = np.empty(k_out, dtype=np.int32)
+    r_ag = np.empty(k_out, dtype=np.int32)
+    r_ts = np.empty(k_out, dtype=np.int32)
+    r_cov = np.empty((k_out if kalman else 0, 6, 6))
+    r_age_s = np.empty(k_out)
+    r_tsu_s = np.empty(k_out)
+    i = 0
+    for j in range(m):
+        if not keep[j]:
+            continue
+        r_ids[i], r_cls[i], r_st[i], r_up[i] = o_ids[j], o_cls[j], o_st[j], o_up[j]
+        r_hi[i], r_ag[i], r_ts[i] = o_hi[j], o_ag[j], o_ts[j]
+        r_box[i] = o_ob[j]
+        r_s[i] = o_ms[j] if coast[j] else o_s[j]
+        r_vel[i] = o_x[j, 7:10]
+        if kalman:
+            for a in range(6):
+                for b in range(6):
+                    r_cov[i, a, b] = o_op[j, _POS_VEL[a], _POS_VEL[b]]
+        r_age_s[i] = stamp - o_tb[j]
+        r_tsu_s[i] = stamp - o_tu[j]
+        i += 1
+    return (
+        o_ids, o_cls, o_x, o_p, o_tu, o_s, o_hi, o_ag, o_ts, o_st, o_up, o_ob, o_ms, o_tb,
+        r_ids, r_box, r_s, r_cls, r_vel, r_st, r_up, r_hi, r_ag, r_ts, r_cov, r_age_s, r_tsu_s,
+    )  # fmt: skip
