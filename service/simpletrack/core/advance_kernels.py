@@ -141,41 +141,44 @@ def advance(
                 v = 0.0
         s[t] = v
 
-    xn = x.copy()
-    pn = p.copy()
+    # Corrected rows: k-th of matched_trk then extended; corr[t] = k, or -1.
+    corr = np.full(n, -1, dtype=np.int64)
     tu = t_update.copy()
-    rows = np.empty(n_c, dtype=np.int64)
+    xo = np.empty((n_c, _X))
+    po = np.empty((n_c, _X, _X))
     for k in range(n_c):
-        rows[k] = matched_trk[k] if k < n_m else extended[k - n_m]
+        t = matched_trk[k] if k < n_m else extended[k - n_m]
+        corr[t] = k
+        tu[t] = stamp
     if n_c > 0:
-        xc = np.empty((n_c, _X))
-        pc = np.empty((n_c, _X, _X))
         zc = np.empty((n_c, 7))
-        for k in range(n_c):
-            t = rows[k]
-            xc[k] = x_pred[t]
-            pc[k] = p_pred[t]
-            zc[k] = d_params[matched_det[k]] if k < n_m else pred_box[t]
+        for t in range(n):
+            k = corr[t]
+            if k >= 0:
+                zc[k] = d_params[matched_det[k]] if k < n_m else pred_box[t]
         if kalman:
-            xo = np.empty((n_c, _X))
-            po = np.empty((n_c, _X, _X))
+            xc = np.empty((n_c, _X))
+            pc = np.empty((n_c, _X, _X))
+            for t in range(n):
+                k = corr[t]
+                if k >= 0:
+                    xc[k] = x_pred[t]
+                    pc[k] = p_pred[t]
             update_into(xc, pc, zc, r, xo, po)
-            for k in range(n_c):
-                xn[rows[k]] = xo[k]
-                pn[rows[k]] = po[k]
-        else:
-            for k in range(n_c):
-                t = rows[k]
-                xn[t] = xc[k]
-                xn[t, :7] = zc[k]
-                xn[t, _YAW] = wrap_once(xn[t, _YAW])
+        else:  # the detection's box (and velocity) replace the prediction's; P is kept
+            for t in range(n):
+                k = corr[t]
+                if k < 0:
+                    continue
+                xo[k] = x_pred[t]
+                xo[k, :7] = zc[k]
+                xo[k, _YAW] = wrap_once(xo[k, _YAW])
                 if has_velocity:
                     if k < n_m:
-                        xn[t, 7:9] = d_velocity[matched_det[k]]
+                        xo[k, 7:9] = d_velocity[matched_det[k]]
                     else:
-                        xn[t, 7:9] = x_pred[t, 7:9]
-        for k in range(n_c):
-            tu[rows[k]] = stamp
+                        xo[k, 7:9] = x_pred[t, 7:9]
+                po[k] = p[t]
 
     ms = match_score.copy()
     for k in range(n_m):
@@ -212,13 +215,6 @@ def advance(
             if update[t] != _MATCHED and std > limit:
                 st[t] = _DEAD
 
-    ob = pred_box.copy()
-    op = p_pred.copy()
-    for k in range(n_c):
-        t = rows[k]
-        ob[t] = xn[t, :7]
-        op[t] = pn[t]
-
     n_born = unmatched_det.shape[0] if key else 0
     alive = np.empty(n, dtype=np.bool_)
     n_alive = 0
@@ -229,8 +225,8 @@ def advance(
     m = n_alive + n_born
     o_ids = np.empty(m, dtype=np.int64)
     o_cls = np.empty(m, dtype=np.int32)
-    o_x = np.zeros((m, _X))
-    o_p = np.zeros((m, _X, _X))
+    o_x = np.empty((m, _X))
+    o_p = np.empty((m, _X, _X))
     o_tu = np.empty(m)
     o_s = np.empty(m)
     o_hi = np.empty(m, dtype=np.int32)
@@ -241,30 +237,40 @@ def advance(
     o_ob = np.empty((m, 7))
     o_ms = np.empty(m)
     o_tb = np.empty(m)
-    o_op = np.zeros((m, _X, _X))  # each row's covariance of its reported box
+    src = np.empty(m, dtype=np.int64)  # each row's track before this frame; -1: born now
     j = 0
     for t in range(n):
         if not alive[t]:
             continue
+        src[j] = t
         o_ids[j], o_cls[j], o_tu[j], o_s[j] = ids[t], cls[t], tu[t], s[t]
         o_hi[j], o_ag[j], o_ts[j], o_st[j], o_up[j] = hi[t], ag[t], ts[t], st[t], update[t]
-        o_x[j] = xn[t]
-        o_p[j] = pn[t]
-        o_ob[j] = ob[t]
+        k = corr[t]
+        if k >= 0:
+            o_x[j] = xo[k]
+            o_p[j] = po[k]
+            o_ob[j] = xo[k, :7]
+        else:
+            o_x[j] = x[t]
+            o_p[j] = p[t]
+            o_ob[j] = pred_box[t]
         o_ms[j], o_tb[j] = ms[t], t_birth[t]
-        o_op[j] = op[t]
         j += 1
     for b in range(n_born):
         u = unmatched_det[b]
         c = d_cls[u]
         min_hits = options[c, MIN_HITS]
+        src[j] = -1
         o_ids[j] = next_id + b
         o_cls[j] = c
+        o_x[j] = 0.0
         o_x[j, :7] = d_params[u]
         if kalman:
             o_p[j] = p0
-        elif has_velocity:
-            o_x[j, 7:9] = d_velocity[u]
+        else:
+            o_p[j] = 0.0
+            if has_velocity:
+                o_x[j, 7:9] = d_velocity[u]
         o_tu[j] = stamp
         o_s[j] = d_score[u]
         o_hi[j], o_ag[j], o_ts[j] = 1, 0, 0
@@ -273,7 +279,6 @@ def advance(
         o_ob[j] = d_params[u]
         o_ms[j] = d_score[u]
         o_tb[j] = stamp
-        o_op[j] = o_p[j]
         j += 1
 
     keep = np.empty(m, dtype=np.bool_)
@@ -315,10 +320,17 @@ def advance(
         r_box[i] = o_ob[j]
         r_s[i] = o_ms[j] if coast[j] else o_s[j]
         r_vel[i] = o_x[j, 7:10]
-        if kalman:
+        if kalman:  # the covariance of the box reported: corrected, else predicted
+            t = src[j]
             for a in range(6):
                 for b in range(6):
-                    r_cov[i, a, b] = o_op[j, _POS_VEL[a], _POS_VEL[b]]
+                    ia, ib = _POS_VEL[a], _POS_VEL[b]
+                    if t < 0:
+                        r_cov[i, a, b] = o_p[j, ia, ib]
+                    elif corr[t] >= 0:
+                        r_cov[i, a, b] = po[corr[t], ia, ib]
+                    else:
+                        r_cov[i, a, b] = p_pred[t, ia, ib]
         r_age_s[i] = stamp - o_tb[j]
         r_tsu_s[i] = stamp - o_tu[j]
         i += 1
