@@ -31,6 +31,7 @@ import numpy.typing as npt
 from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import DetectionPublisher
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
+from simpletrack.core import jit, solvers
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_to_json
 from simpletrack.mcap.format import LEAVES
@@ -268,6 +269,11 @@ class FleetDemo:
         view_session = None
         try:
             service.start()
+            # The planner-side scoring runs the core's NMS and IoU (compiled kernels) and
+            # scipy's assignment: loaded now, while the service starts, not on the first
+            # frame's tracks (that stalled the paced loop ~0.5 s and made the latency tail).
+            solvers.preload()
+            jit.preload()
             session = open_session(client)
             sim = FleetSimulator(o.sim)
             sub = TrackSubscriber(session, prefix=o.prefix, buffer=100_000)
