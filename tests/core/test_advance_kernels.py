@@ -4,6 +4,10 @@ option, life-cycle and parity tests, which now run through it."""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
 from typing import Any
 
@@ -103,3 +107,33 @@ def test_births_take_the_next_ids_and_non_key_frames_bear_none() -> None:
     assert t.next_id == 2 and len(t.tracks) == 2  # no birth, no death off the key frames
     third = t.step(Frame(boxes=far, stamp=0.2))
     assert t.next_id == 3 and 2 in third.ids.tolist()
+
+
+_UNCOMPILED = """
+import json
+from simpletrack.core import jit
+from simpletrack.core.tracker import Tracker
+from tests.core.test_advance_kernels import configs, crowd
+assert not jit.compiled()
+t = Tracker(configs()[INDEX])
+out = [t.step(f) for f in crowd(0, frames=12)]
+print(json.dumps([[o.ids.tolist(), o.boxes.params.tolist(), o.state.tolist()] for o in out]))
+"""
+
+
+@pytest.mark.parametrize("index", [0, 3, 5])
+def test_the_uncompiled_step_tracks_as_the_compiled_one(index: int) -> None:
+    """SIMPLETRACK_JIT=0 (or a missing numba) runs every kernel as Python: the same tracks."""
+    env = {**os.environ, jit.ENV_VAR: "0", "PYTHONPATH": os.pathsep.join(sys.path)}
+    code = _UNCOMPILED.replace("INDEX", str(index))
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+    )
+    plain = json.loads(done.stdout.strip().splitlines()[-1])
+    assert sum(len(ids) for ids, _, _ in plain) > 50  # tracks were reported, not none
+    t = Tracker(configs()[index])
+    for o, (ids, params, state) in zip(
+        (t.step(f) for f in crowd(0, frames=12)), plain, strict=True
+    ):
+        assert o.ids.tolist() == ids and o.state.tolist() == state
+        np.testing.assert_allclose(o.boxes.params, np.array(params).reshape(-1, 7), atol=1e-9)
