@@ -141,44 +141,36 @@ def advance(
                 v = 0.0
         s[t] = v
 
-    # Corrected rows: k-th of matched_trk then extended; corr[t] = k, or -1.
+    # Corrected rows: rows[k] is the k-th of matched_trk then extended; corr[t] = k, or -1.
+    rows = np.empty(n_c, dtype=np.int64)
     corr = np.full(n, -1, dtype=np.int64)
     tu = t_update.copy()
-    xo = np.empty((n_c, _X))
-    po = np.empty((n_c, _X, _X))
     for k in range(n_c):
         t = matched_trk[k] if k < n_m else extended[k - n_m]
+        rows[k] = t
         corr[t] = k
         tu[t] = stamp
-    if n_c > 0:
-        zc = np.empty((n_c, 7))
-        for t in range(n):
-            k = corr[t]
-            if k >= 0:
-                zc[k] = d_params[matched_det[k]] if k < n_m else pred_box[t]
-        if kalman:
-            xc = np.empty((n_c, _X))
-            pc = np.empty((n_c, _X, _X))
-            for t in range(n):
-                k = corr[t]
-                if k >= 0:
-                    xc[k] = x_pred[t]
-                    pc[k] = p_pred[t]
-            update_into(xc, pc, zc, r, xo, po)
-        else:  # the detection's box (and velocity) replace the prediction's; P is kept
-            for t in range(n):
-                k = corr[t]
-                if k < 0:
-                    continue
-                xo[k] = x_pred[t]
-                xo[k, :7] = zc[k]
-                xo[k, _YAW] = wrap_once(xo[k, _YAW])
-                if has_velocity:
-                    if k < n_m:
-                        xo[k, 7:9] = d_velocity[matched_det[k]]
-                    else:
-                        xo[k, 7:9] = x_pred[t, 7:9]
-                po[k] = p[t]
+    xo = np.empty((n_c, _X))
+    po = np.empty((n_c, _X, _X))
+    zc = np.empty((n_c, 7))
+    for k in range(n_c):
+        zc[k] = d_params[matched_det[k]] if k < n_m else pred_box[rows[k]]
+    if kalman:
+        xc = np.empty((n_c, _X))
+        pc = np.empty((n_c, _X, _X))
+        for k in range(n_c):
+            xc[k] = x_pred[rows[k]]
+            pc[k] = p_pred[rows[k]]
+        update_into(xc, pc, zc, r, xo, po)
+    else:  # the detection's box (and velocity) replace the prediction's; P is kept
+        for k in range(n_c):
+            t = rows[k]
+            xo[k] = x_pred[t]
+            xo[k, :7] = zc[k]
+            xo[k, _YAW] = wrap_once(xo[k, _YAW])
+            if has_velocity:
+                xo[k, 7:9] = d_velocity[matched_det[k]] if k < n_m else x_pred[t, 7:9]
+            po[k] = p[t]
 
     ms = match_score.copy()
     for k in range(n_m):
