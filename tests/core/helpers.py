@@ -28,3 +28,33 @@ def config(output: OutputPolicy = OutputPolicy.PAPER, **cls: object) -> TrackerC
     base.update(cls)
     c = ClassConfig.model_validate(base)
     return TrackerConfig(classes={"car": c, "pedestrian": c}, output=output)
+
+
+def crowd(
+    seed: int,
+    frames: int,
+    n: int,
+    *,
+    seen: float,
+    with_velocity: bool = False,
+    non_key_every: int = 0,
+) -> list[Frame]:
+    """Two classes of ``n`` boxes that come (each frame with probability ``seen``), go, jitter
+    and cross at 10 Hz: matches, misses, births and ties. ``with_velocity`` gives the boxes
+    their true velocity; ``non_key_every`` > 0 makes every such frame (counted from 1) non-key."""
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(-15, 15, (n, 2))
+    vel = rng.normal(scale=1.0, size=(n, 2))
+    cls = rng.integers(0, 2, n).astype(np.int32)
+    out = []
+    for k in range(frames):
+        here = rng.random(n) < seen
+        p = np.zeros((int(here.sum()), 7))
+        p[:, :2] = base[here] + vel[here] * k * 0.1 + rng.normal(scale=0.3, size=(p.shape[0], 2))
+        p[:, 3] = rng.normal(scale=0.1, size=p.shape[0])
+        p[:, 4:7] = [4.0, 2.0, 1.5]
+        score = np.round(rng.uniform(0.05, 1.0, p.shape[0]), 1)
+        boxes = Boxes.from_arrays(p, score, cls[here], vel[here] if with_velocity else None)
+        key = non_key_every == 0 or (k + 1) % non_key_every != 0
+        out.append(Frame(boxes=boxes, stamp=k * 0.1, key_frame=key))
+    return out

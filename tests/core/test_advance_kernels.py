@@ -23,25 +23,12 @@ from simpletrack.core.frames import Frame
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.tracker import Tracker
 from tests.core.helpers import config
+from tests.core.helpers import crowd as helpers_crowd
 
 
-def crowd(seed: int, frames: int = 30, n: int = 40) -> list[Frame]:
-    """Two classes of boxes that come and go, with velocities; every fourth frame non-key."""
-    rng = np.random.default_rng(seed)
-    base = rng.uniform(-15, 15, (n, 2))
-    vel = rng.normal(scale=1.0, size=(n, 2))
-    cls = rng.integers(0, 2, n).astype(np.int32)
-    out = []
-    for k in range(frames):
-        seen = rng.random(n) < 0.75
-        p = np.zeros((int(seen.sum()), 7))
-        p[:, :2] = base[seen] + vel[seen] * k * 0.1 + rng.normal(scale=0.3, size=(p.shape[0], 2))
-        p[:, 3] = rng.normal(scale=0.1, size=p.shape[0])
-        p[:, 4:7] = [4.0, 2.0, 1.5]
-        score = np.round(rng.uniform(0.05, 1.0, p.shape[0]), 1)
-        boxes = Boxes.from_arrays(p, score, cls[seen], velocity=vel[seen])
-        out.append(Frame(boxes=boxes, stamp=k * 0.1, key_frame=k % 4 != 3))
-    return out
+def crowd(seed: int, frames: int = 30) -> list[Frame]:
+    """Two classes of boxes with velocities that come and go; every fourth frame non-key."""
+    return helpers_crowd(seed, frames, 40, seen=0.75, with_velocity=True, non_key_every=4)
 
 
 def configs() -> list[TrackerConfig]:

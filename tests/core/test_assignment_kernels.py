@@ -10,12 +10,12 @@ from scipy.optimize import linear_sum_assignment
 
 from simpletrack.core import assignment_kernels as ak
 from simpletrack.core import tracker as tracker_module
-from simpletrack.core.boxes import Boxes
 from simpletrack.core.config import Matcher, Metric, TrackerConfig
 from simpletrack.core.frames import Frame
 from simpletrack.core.lifecycle import UpdateKind
 from simpletrack.core.tracker import Tracker
 from tests.core.helpers import config
+from tests.core.helpers import crowd as helpers_crowd
 
 F64 = npt.NDArray[np.float64]
 
@@ -89,23 +89,7 @@ def test_compiled_solver_equals_its_python_function() -> None:
 
 
 def crowd(seed: int, frames: int = 25) -> list[Frame]:
-    """Two classes of boxes that come, go, jitter and cross: matches, misses, births and ties."""
-    rng = np.random.default_rng(seed)
-    n = 24
-    base = rng.uniform(-15, 15, (n, 2))
-    vel = rng.normal(scale=1.0, size=(n, 2))
-    cls = rng.integers(0, 2, n).astype(np.int32)
-    out = []
-    for k in range(frames):
-        seen = rng.random(n) < 0.8
-        p = np.zeros((int(seen.sum()), 7))
-        p[:, :2] = base[seen] + vel[seen] * k * 0.1 + rng.normal(scale=0.3, size=(p.shape[0], 2))
-        p[:, 3] = rng.normal(scale=0.1, size=p.shape[0])
-        p[:, 4:7] = [4.0, 2.0, 1.5]
-        score = np.round(rng.uniform(0.05, 1.0, p.shape[0]), 1)
-        boxes = Boxes.from_arrays(p, score, cls[seen])
-        out.append(Frame(boxes=boxes, stamp=k * 0.1, key_frame=True))
-    return out
+    return helpers_crowd(seed, frames, 24, seen=0.8)
 
 
 def configs() -> list[TrackerConfig]:
