@@ -62,13 +62,19 @@ def test_core_sweep_writes_json_and_plot(tmp_path: Path) -> None:
 def test_stage_shims_reach_every_stage_the_tracker_uses() -> None:
     """If the core renames a function the shims wrap, its stage goes silent: catch that here."""
     config = preset("nuscenes")
-    tracker = Tracker(config)
     frames = synthetic_stream(12, 4)
+    fused, staged = Tracker(config), Tracker(config)
+    staged._fused = False  # the path of gated frames, frames after a gap, L2 classes
     with StageTimer() as timer:
         for f in frames:
-            tracker.step(f)
-    assert timer.calls["nms"] == len(frames)
-    assert timer.calls["predict"] == len(frames)
+            fused.step(f)
+    assert timer.calls["nms"] == timer.calls["step"] == len(frames)
+    assert timer.calls["predict"] == timer.calls["advance"] == 0
+    with StageTimer() as timer:
+        for f in frames:
+            staged.step(f)
+    assert timer.calls["nms"] == timer.calls["predict"] == len(frames)
+    assert timer.calls["step"] == 0
     # From the second frame on there are tracks to match and correct.
     for stage in ("cost_matrix", "assignment", "advance"):
         assert timer.calls[stage] >= len(frames) - 1, (stage, timer.calls)

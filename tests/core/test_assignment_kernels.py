@@ -119,6 +119,7 @@ def test_tracker_tracks_as_with_the_python_assignment(
 
     monkeypatch.setattr(tracker_module, "stage1_dense", python_path)
     t = Tracker(cfg)
+    t._fused = False  # the staged path, where stage1_dense is looked up
     plain = [t.step(f) for f in frames]
     matched = 0
     for a, b in zip(compiled, plain, strict=True):

@@ -13,6 +13,7 @@ from simpletrack.bench.stages import OTHER, STAGES
 
 STAGE_COLOURS = {
     "nms": "tab:blue",
+    "step": "tab:purple",
     "predict": "tab:cyan",
     "cost_matrix": "tab:red",
     "assignment": "tab:orange",

@@ -37,7 +37,8 @@ what it measures:
   preset kitti, Car alone and all 3 classes in one tracker per sequence): frames/s and the
   per-frame latency of Tracker.step (files are parsed first, not timed); then, in a second
   pass with timing shims on the functions step calls, ms per frame in each stage (nms,
-  predict, cost_matrix, assignment, update, lifecycle, output, other).
+  step: an ordinary frame's prediction-to-output in one compiled call; and for the frames
+  it does not take: predict, cost_matrix, assignment, advance; other).
   The sweep: synthetic frames of N cars (one class) and as many live tracks, per-frame time
   against N on a log-log plot with the fitted growth exponent.
   The speed-up against the reference uses its authors' own measurement on this machine kind

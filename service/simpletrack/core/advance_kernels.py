@@ -27,6 +27,7 @@ from simpletrack.core.jit import kernel
 from simpletrack.core.kalman_kernels import update_into, wrap_once
 
 __all__ = [
+    "ADVANCE_OUTPUTS",
     "COAST_OUTPUT",
     "DELETE_BELOW",
     "FUSED",
@@ -69,8 +70,10 @@ _TRACKS_OUT = (
     " int8[::1], int32[::1], int32[::1], int32[::1], float64[:, :, ::1], float64[::1],"
     " float64[::1]"
 )
+# What advance returns, as numba types (core/step_kernels.py returns it too).
+ADVANCE_OUTPUTS = f"{_TABLE_OUT}, {_TRACKS_OUT}"
 _ADVANCE = (
-    f"Tuple(({_TABLE_OUT}, {_TRACKS_OUT}))"
+    f"Tuple(({ADVANCE_OUTPUTS}))"
     "(int64[:], int32[:], float64[:, :], float64[:, :, :], float64[:], float64[:], int32[:],"
     " int32[:], int32[:], int8[:], float64[:], float64[:],"
     " float64[:, :], float64[:, :, :], float64[:, :], int8[:],"

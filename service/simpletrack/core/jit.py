@@ -7,8 +7,9 @@
 - ``nogil``: a worker thread running a kernel lets the others run theirs on the other cores.
   ``cache``: compiled once per machine (numba's cache beside the source, or the user's cache
   when that is read-only), loaded in milliseconds afterwards.
-- A kernel may call functions marked ``@helper`` (plain Python functions): they are compiled
-  with the kernel, and stay plain Python when the kernel runs uncompiled.
+- A kernel may call functions marked ``@helper`` (plain Python functions) and other kernels:
+  they are compiled with the kernel, and stay plain Python (or their own kernel) when the
+  kernel runs uncompiled.
 - Without a working numba, or with ``SIMPLETRACK_JIT=0`` (tests compare both ways), a kernel
   runs its own Python function: the same arithmetic, slower. A missing or failing numba warns
   once. This is the only module of the core that reads the environment.
@@ -38,6 +39,7 @@ _KERNEL_MODULES = (
     "simpletrack.core.kalman_kernels",
     "simpletrack.core.assignment_kernels",
     "simpletrack.core.advance_kernels",
+    "simpletrack.core.step_kernels",
 )
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"
@@ -169,11 +171,12 @@ def _linked(fn: Callable[..., Any]) -> Callable[..., Any]:
     """``fn`` with the helpers it names bound to their numba dispatchers (recursively), as a
     copy: the module keeps the plain functions for uncompiled use. Call with _lock held."""
     named = {name: fn.__globals__.get(name) for name in fn.__code__.co_names}
-    swaps = {
-        name: _compiled_helper(value)
-        for name, value in named.items()
-        if callable(value) and getattr(value, _HELPER_MARK, False)
-    }
+    swaps: dict[str, Any] = {}
+    for name, value in named.items():
+        if isinstance(value, Kernel):  # a kernel called by another: compiled into it
+            swaps[name] = _compiled_helper(value.py, "never")
+        elif callable(value) and getattr(value, _HELPER_MARK, False):
+            swaps[name] = _compiled_helper(value)
     if not swaps:
         return fn
     copy = types.FunctionType(
@@ -183,9 +186,9 @@ def _linked(fn: Callable[..., Any]) -> Callable[..., Any]:
     return copy
 
 
-def _compiled_helper(fn: Callable[..., Any]) -> Any:
+def _compiled_helper(fn: Callable[..., Any], how: str | None = None) -> Any:
     if fn not in _compiled_helpers:
         # Typed and compiled with the first kernel calling it (or inlined into it).
-        how = getattr(fn, _HELPER_MARK)
-        _compiled_helpers[fn] = _numba.njit(inline=how, **_OPTIONS)(_linked(fn))
+        inline = how or getattr(fn, _HELPER_MARK)
+        _compiled_helpers[fn] = _numba.njit(inline=inline, **_OPTIONS)(_linked(fn))
     return _compiled_helpers[fn]

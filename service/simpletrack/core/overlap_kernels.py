@@ -107,14 +107,22 @@ def _relative(
     ``exact_yaw`` takes cos/sin of the yaw difference (exactly 1, 0 for equal yaws); otherwise
     product formulas of per-box cos/sin (the hull's closed form needs no exact yaw)."""
     ca, sa = pa[i, _COS], pa[i, _SIN]
-    dxw = pb[j, X] - pa[i, X]
-    dyw = pb[j, Y] - pa[i, Y]
     if exact_yaw:
+        dxw = pb[j, X] - pa[i, X]
+        dyw = pb[j, Y] - pa[i, Y]
         dyaw = pb[j, YAW] - pa[i, YAW]
-        c, s = math.cos(dyaw), math.sin(dyaw)
-    else:
-        cb, sb = pb[j, _COS], pb[j, _SIN]
-        c, s = cb * ca + sb * sa, sb * ca - cb * sa
+        return ca * dxw + sa * dyw, ca * dyw - sa * dxw, math.cos(dyaw), math.sin(dyaw)
+    return _relative_of(pa[i, X], pa[i, Y], ca, sa, pb[j, X], pb[j, Y], pb[j, _COS], pb[j, _SIN])
+
+
+@inline
+def _relative_of(
+    ax: float, ay: float, ca: float, sa: float, bx: float, by: float, cb: float, sb: float
+) -> tuple[float, float, float, float]:
+    """``_relative`` without exact_yaw, from the two boxes' centres and headings."""
+    dxw = bx - ax
+    dyw = by - ay
+    c, s = cb * ca + sb * sa, sb * ca - cb * sa
     return ca * dxw + sa * dyw, ca * dyw - sa * dxw, c, s
 
 
@@ -166,7 +174,14 @@ def _intersection(pa: F64, i: int, pb: F64, j: int, tmp: F64) -> float:
 def _hull(pa: F64, i: int, pb: F64, j: int) -> float:
     """BEV convex hull area of boxes pa[i], pb[j] (closed form, see the module doc)."""
     dx, dy, c, s = _relative(pa, i, pb, j, False)
-    ha, wa, hl, hw = pa[i, L] / 2, pa[i, W] / 2, pb[j, L] / 2, pb[j, W] / 2
+    return _hull_of(dx, dy, c, s, pa[i, L] / 2, pa[i, W] / 2, pb[j, L] / 2, pb[j, W] / 2)
+
+
+@inline
+def _hull_of(
+    dx: float, dy: float, c: float, s: float, ha: float, wa: float, hl: float, hw: float
+) -> float:
+    """``_hull`` from b's centre and heading in a's frame and the four half sizes."""
     du, dv = abs(dx * c + dy * s), abs(dy * c - dx * s)  # b's centre along b's axes
     c, s, dx, dy = abs(c), abs(s), abs(dx), abs(dy)
     # Margins h_a - h_b along each edge normal, both boxes about their own centres: along a's
@@ -201,6 +216,83 @@ def _clipped_intersection(pa: F64, i: int, pb: F64, j: int, tmp: F64) -> float:
     return _minimum(_maximum(area, 0.0), cap)
 
 
+@inline
+def _vertical(za: float, ha: float, zb: float, hb: float, exact: bool) -> tuple[float, float]:
+    """Overlap and union of two vertical extents (centre, height). Not ``exact``: the
+    reference's formula, wrong when one extent contains the other."""
+    top_a, bot_a = za + ha / 2, za - ha / 2
+    top_b, bot_b = zb + hb / 2, zb - hb / 2
+    if exact:
+        return (
+            _maximum(0.0, _minimum(top_a, top_b) - _maximum(bot_a, bot_b)),
+            _maximum(top_a, top_b) - _minimum(bot_a, bot_b),
+        )
+    ab, ba = top_a - bot_b, top_b - bot_a
+    return _maximum(0.0, _minimum(ab, ba)), _maximum(ab, ba)
+
+
+@inline
+def _union(
+    inter: float,
+    al: float,
+    aw: float,
+    az: float,
+    ah: float,
+    bl: float,
+    bw: float,
+    bz: float,
+    bh: float,
+    three_d: bool,
+    exact_vertical: bool,
+) -> tuple[float, float, float]:
+    """(intersection, union, union height; 0 in BEV) of boxes a and b given by their sizes
+    and heights, from the BEV intersection area."""
+    size_a, size_b = al * aw, bl * bw
+    union_h = 0.0
+    if three_d:
+        overlap_h, union_h = _vertical(az, ah, bz, bh, exact_vertical)
+        inter = inter * overlap_h
+        size_a, size_b = size_a * ah, size_b * bh
+    return inter, size_a + size_b - inter, union_h
+
+
+@inline
+def _giou_less_iou(
+    union: float, hull: float, union_h: float, three_d: bool, reference_3d: bool
+) -> float:
+    """GIoU - IoU = union / enclosing - 1."""
+    enclosing = hull
+    if three_d:
+        enclosing = enclosing * union_h
+    if not reference_3d:
+        # The hull contains the union; rounding must not push GIoU above IoU.
+        enclosing = _maximum(enclosing, union)
+    giou = union / enclosing if enclosing > 0 else 1.0
+    return giou - 1.0
+
+
+Terms = tuple[float, float, float, float, float, float, float, float]
+
+
+@inline
+def _far_terms(p: F64, i: int) -> Terms:
+    """The terms ``_far_giou`` reads of box p[i] (a ``_with_terms`` row), as values: a loop
+    over many pairs keeps them in registers."""
+    return p[i, X], p[i, Y], p[i, Z], p[i, L], p[i, W], p[i, H], p[i, _COS], p[i, _SIN]
+
+
+@inline
+def _far_giou(a: Terms, b: Terms, three_d: bool, exact_vertical: bool) -> float:
+    """``_overlap``'s GIoU of a pair whose circles do not meet (``_near`` false), by the same
+    operations in the same order, from the two boxes' ``_far_terms``."""
+    ax, ay, az, al, aw, ah, ca, sa = a
+    bx, by, bz, bl, bw, bh, cb, sb = b
+    _, union, union_h = _union(0.0, al, aw, az, ah, bl, bw, bz, bh, three_d, exact_vertical)
+    dx, dy, c, s = _relative_of(ax, ay, ca, sa, bx, by, cb, sb)
+    hull = _hull_of(dx, dy, c, s, al / 2, aw / 2, bl / 2, bw / 2)
+    return _giou_less_iou(union, hull, union_h, three_d, three_d and not exact_vertical)
+
+
 @helper
 def _overlap(
     pa: F64,
@@ -218,36 +310,17 @@ def _overlap(
     inter = 0.0
     if near:
         inter = _clipped_intersection(pa, i, pb, j, tmp)
-    size_a, size_b = pa[i, L] * pa[i, W], pb[j, L] * pb[j, W]
-    union_h = 0.0
-    if three_d:
-        top_a, bot_a = pa[i, Z] + pa[i, H] / 2, pa[i, Z] - pa[i, H] / 2
-        top_b, bot_b = pb[j, Z] + pb[j, H] / 2, pb[j, Z] - pb[j, H] / 2
-        if exact_vertical:
-            overlap_h = _maximum(0.0, _minimum(top_a, top_b) - _maximum(bot_a, bot_b))
-            union_h = _maximum(top_a, top_b) - _minimum(bot_a, bot_b)
-        else:
-            # The reference's formula: wrong when one vertical extent contains the other.
-            ab, ba = top_a - bot_b, top_b - bot_a
-            overlap_h = _maximum(0.0, _minimum(ab, ba))
-            union_h = _maximum(ab, ba)
-        inter = inter * overlap_h
-        size_a, size_b = size_a * pa[i, H], size_b * pb[j, H]
-    union = size_a + size_b - inter
+    inter, union, union_h = _union(
+        inter, pa[i, L], pa[i, W], pa[i, Z], pa[i, H], pb[j, L], pb[j, W], pb[j, Z], pb[j, H],
+        three_d, exact_vertical,
+    )  # fmt: skip
     reference_3d = three_d and not exact_vertical
     if reference_3d and not generalized:
         return float(inter / (union + REFERENCE_EPS))
     iou = inter / union if union > 0 else 0.0
     if not generalized:
         return iou
-    enclosing = _hull(pa, i, pb, j)
-    if three_d:
-        enclosing = enclosing * union_h
-    if not reference_3d:
-        # The hull contains the union; rounding must not push GIoU above IoU.
-        enclosing = _maximum(enclosing, union)
-    giou = union / enclosing if enclosing > 0 else 1.0
-    giou -= 1.0
+    giou = _giou_less_iou(union, _hull(pa, i, pb, j), union_h, three_d, reference_3d)
     # Pairs that cannot intersect have IoU exactly 0.
     if near:
         giou += iou

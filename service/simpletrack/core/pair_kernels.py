@@ -17,8 +17,14 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.jit import kernel
-from simpletrack.core.overlap_kernels import _overlap, _with_terms
+from simpletrack.core.jit import helper, kernel
+from simpletrack.core.overlap_kernels import (
+    _far_giou,
+    _far_terms,
+    _near,
+    _overlap,
+    _with_terms,
+)
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -38,27 +44,59 @@ def overlap_kind(three_d: bool, generalized: bool) -> int:
     return (_THREE_D if three_d else 0) | (_GENERALIZED if generalized else 0)
 
 
+@helper
+def _by_class(cls: I64, n_cls: int) -> tuple[I64, I64]:
+    """(order, start): indices listed class by class, ascending within a class (a counting
+    sort); class c's are order[start[c]:start[c + 1]]."""
+    start = np.zeros(n_cls + 1, dtype=np.int64)
+    for j in range(cls.shape[0]):
+        start[cls[j] + 1] += 1
+    for c in range(n_cls):
+        start[c + 1] += start[c]
+    order = np.empty(cls.shape[0], dtype=np.int64)
+    fill = start[:-1].copy()
+    for j in range(cls.shape[0]):
+        order[fill[cls[j]]] = j
+        fill[cls[j]] += 1
+    return order, start
+
+
 @kernel(_TABLE)
 def class_table(
     d_params: F64, d_cls: I64, t_params: F64, t_cls: I64, kind: I64, exact_vertical: bool
 ) -> F64:
     """(N, M): ``1 - overlap`` of each same-class pair whose class ``kind`` is an overlap
-    metric (``overlap_kind``), +inf for every other pair."""
+    metric (``overlap_kind``), +inf for every other pair. A GIoU row is computed for all of
+    the class's tracks at once as if no pair met (``_far_giou``, over columns of the tracks'
+    terms: a loop without calls), then the pairs whose circles meet are redone whole."""
     out = np.full((d_params.shape[0], t_params.shape[0]), np.inf)
     if out.size == 0:
         return out
     pa, pb = _with_terms(d_params), _with_terms(t_params)
     tmp = np.empty((6, 36))  # scratch outlines, reused by every pair
+    order, start = _by_class(t_cls, kind.shape[0])
+    tb = np.empty((8, order.size))  # the tracks' _far_terms as columns, in class order
+    for s in range(order.size):
+        tb[:, s] = _far_terms(pb, order[s])
+    far = np.empty(t_params.shape[0])
     for i in range(d_params.shape[0]):
         c = d_cls[i]
         k = kind[c]
         if k == NOT_OVERLAP:
             continue
         three_d, generalized = (k & _THREE_D) != 0, (k & _GENERALIZED) != 0
-        for j in range(t_params.shape[0]):
-            if t_cls[j] == c:
-                o = _overlap(pa, i, pb, j, three_d, generalized, exact_vertical, tmp)
-                out[i, j] = 1.0 - o
+        lo, hi = start[c], start[c + 1]
+        if generalized:
+            a = _far_terms(pa, i)
+            for s in range(lo, hi):
+                b = (tb[0, s], tb[1, s], tb[2, s], tb[3, s], tb[4, s], tb[5, s], tb[6, s], tb[7, s])
+                far[s] = 1.0 - _far_giou(a, b, three_d, exact_vertical)
+        for s in range(lo, hi):
+            j = order[s]
+            if generalized and not _near(pa, i, pb, j):
+                out[i, j] = far[s]
+            else:
+                out[i, j] = 1.0 - _overlap(pa, i, pb, j, three_d, generalized, exact_vertical, tmp)
     return out
 
 
@@ -87,6 +125,9 @@ def nms_walk(params: F64, cls: I64, order: I64, threshold: F64, exact_vertical: 
             j = order[b]
             if cls[j] != c:
                 break
-            if not suppressed[j] and _overlap(p, i, p, j, True, False, exact_vertical, tmp) > limit:
+            # A pair whose circles do not meet has IoU 0 (or NaN): over no threshold >= 0.
+            if suppressed[j] or (limit >= 0.0 and not _near(p, i, p, j)):
+                continue
+            if _overlap(p, i, p, j, True, False, exact_vertical, tmp) > limit:
                 suppressed[j] = True
     return kept[:count].copy()

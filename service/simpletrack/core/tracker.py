@@ -9,6 +9,9 @@ coast_output, gate_widening, max_position_std) are all off by default.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
@@ -48,6 +51,21 @@ from simpletrack.core.pair_kernels import NOT_OVERLAP, class_table, overlap_kind
 from simpletrack.core.pairs import DENSE_CELLS, PairTable, far_cost
 from simpletrack.core.reassociation import reassociate
 from simpletrack.core.state import TrackTable, pack, unpack
+from simpletrack.core.step_kernels import (
+    FAR_COST,
+    GATE_WIDENING,
+    HUNGARIAN,
+    MAX_DISTANCE,
+    N_ASSOCIATION,
+    SCORE_HIGH,
+    SCORE_LOW,
+    STAGE2_MAX,
+    TWO_STAGE,
+    WIDENED,
+    InfeasibleBlock,
+    step_dense,
+)
+from simpletrack.core.step_kernels import MAX_AGE as ASSOC_MAX_AGE
 
 STATE_FORMAT = 1
 _POLICY_CODES = {
@@ -101,7 +119,23 @@ class Tracker:
             options[code, MAX_POSITION_STD] = _or(c.max_position_std, np.inf)
             options[code, COAST_OUTPUT] = c.coast_output
         self._class_options = options
+        assoc = np.zeros((len(cc), N_ASSOCIATION))
+        for code, c in enumerate(cc):
+            assoc[code, SCORE_HIGH] = c.score_high
+            assoc[code, SCORE_LOW] = c.score_low
+            assoc[code, TWO_STAGE] = c.two_stage
+            assoc[code, STAGE2_MAX] = c.stage2_max_distance
+            assoc[code, MAX_DISTANCE] = c.max_distance
+            assoc[code, GATE_WIDENING] = c.gate_widening
+            assoc[code, ASSOC_MAX_AGE] = c.max_age
+            assoc[code, FAR_COST] = self._far_cost[code]
+            assoc[code, HUNGARIAN] = c.matcher is Matcher.HUNGARIAN
+            assoc[code, WIDENED] = c.gate_widening > 0
+        self._association = assoc
         self._policy = _POLICY_CODES[config.output]
+        # An ordinary frame in one compiled call (core/step_kernels.py) unless a class is
+        # measured in numpy; the staged path below is the same arithmetic, step by step.
+        self._fused = not self._numpy_metric.any()
         self.reset()
 
     def reset(self) -> None:
@@ -121,6 +155,12 @@ class Tracker:
         dets = self._preprocess(frame)
         key = frame.key_frame
         tr = self.tracks
+        # Every class block dense (core/pairs.py) whatever the thresholds keep.
+        if self._fused and not frame.after_gap and len(dets) * len(tr) <= DENSE_CELLS:
+            try:
+                return self._step_dense(tr, dets, key, frame.stamp)
+            except InfeasibleBlock:
+                pass  # the staged path raises scipy's error for the same block
 
         x_pred, p_pred = self._predict(tr, frame.stamp)
         pred_box = predicted_boxes(x_pred)
@@ -161,6 +201,22 @@ class Tracker:
             tr, x_pred, p_pred, pred_box, update, matched_det, matched_trk, extended,
             unmatched_det, dets, key, frame.stamp,
         )  # fmt: skip
+
+    def _step_dense(self, tr: TrackTable, dets: Boxes, key: bool, stamp: float) -> Tracks:
+        kalman = self.config.motion is MotionModel.KALMAN
+        velocity = dets.velocity
+        out = step_dense(
+            tr.ids, tr.cls, tr.x, tr.p, tr.t_update, tr.score, tr.hits, tr.age,
+            tr.time_since_update, tr.state, tr.match_score, tr.t_birth,
+            dets.params, dets.score, dets.cls, _NO_VELOCITY if velocity is None else velocity,
+            key, kalman, velocity is not None, self.frame_count, self.next_id, float(stamp),
+            self._association, self._overlap_kind,
+            self.config.vertical_overlap is VerticalOverlap.EXACT,
+            self.config.non_key.score_high, self.config.non_key.score_low,
+            self._kf.q, self._kf.r, self._kf.p0, self._policy, self.config.coast_score_decay,
+            self._class_options,
+        )  # fmt: skip
+        return self._keep(out[:-1], out[-1] if key else 0, stamp, kalman)
 
     # ------------------------------------------------------------------ stages
     def _preprocess(self, frame: Frame) -> Boxes:
@@ -471,11 +527,7 @@ class Tracker:
         compiled call (core/advance_kernels.py); the tracks after this frame are kept."""
         kalman = self.config.motion is MotionModel.KALMAN
         velocity = dets.velocity
-        (
-            t_ids, t_cls, t_x, t_p, t_update, t_score, t_hits, t_age, t_tsu, t_state, t_upd,
-            t_box, t_match, t_birth,
-            ids, box, score, cls, vel, state, upd, hits, age, tsu, cov, age_s, tsu_s,
-        ) = advance(
+        out = advance(
             tr.ids, tr.cls, tr.x, tr.p, tr.t_update, tr.score, tr.hits, tr.age,
             tr.time_since_update, tr.state, tr.match_score, tr.t_birth,
             x_pred, p_pred, pred_box, update,
@@ -485,12 +537,47 @@ class Tracker:
             float(stamp), self.config.coast_score_decay,
             self._class_options, self._kf.r, self._kf.p0,
         )  # fmt: skip
+        return self._keep(out, int(unmatched_det.size) if key else 0, stamp, kalman)
+
+    def _keep(
+        self, out: Sequence[npt.NDArray[Any]], born: int, stamp: float, kalman: bool
+    ) -> Tracks:
+        """Keep the track table ``advance`` returned (its first 14 outputs); the reported
+        tracks from the other 13."""
+        (
+            t_ids,
+            t_cls,
+            t_x,
+            t_p,
+            t_update,
+            t_score,
+            t_hits,
+            t_age,
+            t_tsu,
+            t_state,
+            t_upd,
+            t_box,
+            t_match,
+            t_birth,
+            ids,
+            box,
+            score,
+            cls,
+            vel,
+            state,
+            upd,
+            hits,
+            age,
+            tsu,
+            cov,
+            age_s,
+            tsu_s,
+        ) = out
         self.tracks = TrackTable(
             t_ids, t_cls, t_x, t_p, t_update, t_score, t_hits, t_age, t_tsu, t_state, t_upd,
             t_box, t_match, t_birth,
         )  # fmt: skip
-        if key:
-            self.next_id += int(unmatched_det.size)
+        self.next_id += born
         self.last_stamp = stamp
         return Tracks(
             ids=ids,
