@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from simpletrack.core import tracker as tracker_module
+from simpletrack.core.boxes import Boxes
 from simpletrack.core.config import (
     Matcher,
     Metric,
@@ -31,8 +32,20 @@ from tests.core.helpers import config, crowd
 
 
 def stream(seed: int) -> list[Frame]:
-    """Crowded, with velocities, every third frame non-key: births, deaths, coasting, ties."""
-    return crowd(seed, 30, 40, seen=0.75, with_velocity=True, non_key_every=3)
+    """Crowded, with velocities, every third frame non-key: births, deaths, coasting, ties;
+    a few degenerate boxes (zero width, NaN score, infinite velocity) to drop."""
+    out = []
+    for k, f in enumerate(crowd(seed, 30, 40, seen=0.75, with_velocity=True, non_key_every=3)):
+        b = f.boxes
+        params, score, velocity = b.params.copy(), b.score.copy(), b.velocity.copy()
+        if k % 4 == 1:
+            params[k % 5 :: 9, 5] = 0.0
+            score[2::13] = np.nan
+            velocity[5::17, 0] = np.inf
+        out.append(
+            replace(f, boxes=Boxes(params=params, score=score, cls=b.cls, velocity=velocity))
+        )
+    return out
 
 
 def configs() -> list[TrackerConfig]:
@@ -73,13 +86,13 @@ def _same(a: Tracks, b: Tracks) -> None:
 
 def _calls(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     seen = {"fused": 0}
-    step_dense = tracker_module.step_dense
+    step_frame = tracker_module.step_frame
 
     def counted(*args: Any) -> Any:
         seen["fused"] += 1
-        return step_dense(*args)
+        return step_frame(*args)
 
-    monkeypatch.setattr(tracker_module, "step_dense", counted)
+    monkeypatch.setattr(tracker_module, "step_frame", counted)
     return seen
 
 
@@ -142,6 +155,42 @@ def test_frames_the_fused_step_does_not_take_go_down_the_staged_path(
     assert seen["fused"] == 1  # the first frame only: no tracks yet, 0 pairs
 
 
+@pytest.mark.parametrize("tie_order", list(TieOrder))
+def test_frames_with_an_ego_pose_are_moved_then_tracked_as_on_the_staged_path(
+    tie_order: TieOrder, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The degenerate boxes dropped and the world frame applied before the compiled call."""
+    frames = []
+    for k, f in enumerate(stream(6)):
+        yaw = 0.3 + 0.02 * k
+        pose = np.eye(4)
+        pose[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+        pose[:3, 3] = [100.0 + k, -50.0, 1.0]
+        frames.append(replace(f, pose=pose))
+    seen = _calls(monkeypatch)
+    cfg = config().model_copy(update={"tie_order": tie_order})
+    fused, staged = Tracker(cfg), Tracker(cfg)
+    staged._fused = False
+    for f in frames:
+        _same(fused.step(f), staged.step(f))
+    assert seen["fused"] == len(frames) and fused.next_id > 30
+
+
+def test_read_only_detections_are_tracked_as_writable_ones() -> None:
+    """Decoded frames hold views of the message's bytes: read-only arrays."""
+    frames = stream(4)
+    plain, read_only = Tracker(config()), Tracker(config())
+    for f in frames:
+        b = f.boxes
+        cols = [b.params.copy(), b.score.copy(), b.cls.copy(), b.velocity.copy()]
+        for a in cols:
+            a.flags.writeable = False
+        frozen = replace(
+            f, boxes=Boxes(params=cols[0], score=cols[1], cls=cols[2], velocity=cols[3])
+        )
+        _same(read_only.step(frozen), plain.step(f))
+
+
 def test_a_frame_the_compiled_solve_gives_up_on_is_tracked_by_the_staged_path(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -152,7 +201,7 @@ def test_a_frame_the_compiled_solve_gives_up_on_is_tracked_by_the_staged_path(
     def gives_up(*args: Any) -> Any:
         raise InfeasibleBlock("no finite assignment")
 
-    monkeypatch.setattr(tracker_module, "step_dense", gives_up)
+    monkeypatch.setattr(tracker_module, "step_frame", gives_up)
     retried, staged = Tracker(config()), Tracker(config())
     staged._fused = False
     for f in frames:

@@ -25,10 +25,10 @@ from typing import Any
 # (stage, module, attribute path inside the module). Order = the order a frame goes through.
 TARGETS: tuple[tuple[str, str, str], ...] = (
     ("nms", "simpletrack.core.tracker", "nms"),
-    # An ordinary frame from the prediction to the output: one compiled call
+    # An ordinary frame whole, from its boxes to its tracks: one compiled call
     # (core/step_kernels.py). The stages below are the staged path's, which takes the frames
     # the fused call does not (gated, after a gap, L2 or Mahalanobis classes).
-    ("step", "simpletrack.core.tracker", "Tracker._step_dense"),
+    ("step", "simpletrack.core.tracker", "Tracker._step_frame"),
     ("predict", "simpletrack.core.tracker", "Tracker._predict"),
     ("cost_matrix", "simpletrack.core.tracker", "Tracker._distance_table"),
     ("cost_matrix", "simpletrack.core.geometry", "distance_pairs"),

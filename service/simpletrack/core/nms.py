@@ -15,6 +15,8 @@ I64 = npt.NDArray[np.int64]
 # Same-class pairs up to which the compiled walk tests every pair it needs (~1 ms at most);
 # past it the BEV grid lists the few pairs that can overlap.
 _WALK_PAIRS = 1 << 18
+# Frames of at most this many boxes are walked whole whatever their classes (512^2 = 2^18).
+NMS_WALK_BOXES = 512
 
 
 def drop_degenerate(boxes: Boxes) -> I64:
@@ -46,18 +48,23 @@ def nms(
     lo, hi = int(cls.min()), int(cls.max())
     if lo < 0 or hi >= thr.size:
         raise ValueError(f"class codes span {lo}..{hi} but only {thr.size} NMS thresholds given")
-    if tie_order is TieOrder.STABLE:
-        # Ascending class, then descending score, ties in input order (what descending_stable
-        # gives class by class): lexsort is stable.
-        order = np.lexsort((-boxes.score, cls)).astype(np.int64)
-    else:
-        members = [np.flatnonzero(cls == c) for c in np.unique(cls)]
-        order = np.concatenate([m[descending_reference(boxes.score[m])] for m in members])
+    order = nms_order(boxes, tie_order)
     per_class = np.bincount(cls)
     exact = vertical is VerticalOverlap.EXACT
     if int(np.dot(per_class, per_class)) <= _WALK_PAIRS:
         return walk_kernel(boxes.params, cls.astype(np.int64), order, thr, exact)
     return _gated_walk(boxes, thr, order, vertical)
+
+
+def nms_order(boxes: Boxes, tie_order: TieOrder) -> I64:
+    """The walk's order: ascending class, each in descending score; equal scores in input
+    order (``STABLE``) or as the reference's sort left them (``REFERENCE``)."""
+    cls = boxes.cls
+    if tie_order is TieOrder.STABLE:
+        # What descending_stable gives class by class: lexsort is stable.
+        return np.lexsort((-boxes.score, cls)).astype(np.int64)
+    members = [np.flatnonzero(cls == c) for c in np.unique(cls)]
+    return np.concatenate([m[descending_reference(boxes.score[m])] for m in members])
 
 
 def _gated_walk(boxes: Boxes, thr: F64, order: I64, vertical: VerticalOverlap) -> I64:

@@ -53,6 +53,19 @@ class TrackTable:
     def __len__(self) -> int:
         return int(self.ids.shape[0])
 
+    def step_columns(self) -> tuple[
+        npt.NDArray[np.int64], npt.NDArray[np.int32], npt.NDArray[np.float64],
+        npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64],
+        npt.NDArray[np.int32], npt.NDArray[np.int32], npt.NDArray[np.int32],
+        npt.NDArray[np.int8], npt.NDArray[np.float64], npt.NDArray[np.float64],
+    ]:  # fmt: skip
+        """The columns a step starts from, in the compiled kernels' argument order (all but
+        ``update`` and ``out_box``, which only the frame's own outcome sets)."""
+        return (
+            self.ids, self.cls, self.x, self.p, self.t_update, self.score, self.hits, self.age,
+            self.time_since_update, self.state, self.match_score, self.t_birth,
+        )  # fmt: skip
+
     def take(self, index: npt.ArrayLike) -> TrackTable:
         idx = np.asarray(index)
         return TrackTable(*(getattr(self, name)[idx] for name in _FIELDS))

@@ -1,14 +1,15 @@
-"""An ordinary frame's whole step after pre-processing, compiled in one call.
+"""An ordinary frame's whole step, compiled in one call.
 
-``step_dense`` is ``Tracker.step`` from the prediction to the output for a frame whose every
-class block is dense (core/pairs.py) and measured by the IoU family: predict every track
+``step_frame`` is ``Tracker.step`` after its argument checks for a frame whose every class
+block is dense (core/pairs.py) and measured by the IoU family: the degenerate boxes dropped,
+the NMS walk (``pair_kernels.nms_walk``), then: predict every track
 (``kalman_kernels.predict_all``, or constant velocity), the predicted boxes, the stage-1 and
 stage-2 candidates, the distance table (``pair_kernels.class_table``), stage 1
 (``assignment_kernels.stage1_dense``), stage 2, then ``advance_kernels.advance``. It calls the
 same kernels the staged path calls, with the same arguments, and does the glue between them
 (thresholds, index lists, stage 2) with the same comparisons in the same order: its outputs
 are bit-identical to the staged path's (tests/core/test_step_kernels.py runs both). What it
-saves is the ~60 numpy calls and five kernel calls of Python around them (a third of a warm
+saves is the ~70 numpy calls and six kernel calls of Python around them (half of a warm
 nuScenes step, and more of a cold one: the first frame after an idle spell).
 
 The staged path (core/tracker.py) keeps everything else: gated frames, L2 and Mahalanobis
@@ -18,14 +19,17 @@ staged path then raises scipy's error).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 
 from simpletrack.core.advance_kernels import ADVANCE_OUTPUTS, advance
 from simpletrack.core.assignment_kernels import INFEASIBLE, stage1_dense
-from simpletrack.core.jit import kernel
+from simpletrack.core.boxes import H, L, W
+from simpletrack.core.jit import helper, kernel
 from simpletrack.core.kalman_kernels import predict_all, wrap_once
-from simpletrack.core.pair_kernels import class_table
+from simpletrack.core.pair_kernels import class_table, nms_walk
 
 __all__ = [
     "FAR_COST",
@@ -39,7 +43,7 @@ __all__ = [
     "STAGE2_MAX",
     "TWO_STAGE",
     "InfeasibleBlock",
-    "step_dense",
+    "step_frame",
 ]
 
 # Columns of the per-class association table (Tracker builds it once from its config);
@@ -77,15 +81,15 @@ _STEP = (
     f"Tuple(({ADVANCE_OUTPUTS}, int64))"
     "(int64[:], int32[:], float64[:, :], float64[:, :, :], float64[:], float64[:], int32[:],"
     " int32[:], int32[:], int8[:], float64[:], float64[:],"
-    " float64[:, :], float64[:], int32[:], float64[:, :],"
-    " boolean, boolean, boolean, int64, int64, float64,"
+    " float64[:, :], float64[:], int32[:], float64[:, :], boolean, boolean, int64[:], float64[:],"
+    " boolean, boolean, int64, int64, float64,"
     " float64[:, :], int64[:], boolean, float64, float64,"
     " float64[:, :], float64[:, :], float64[:, :], int64, float64, float64[:, :])"
 )
 
 
 @kernel(_STEP)
-def step_dense(
+def step_frame(
     ids: I64,
     cls: I32,
     x: F64,
@@ -98,13 +102,16 @@ def step_dense(
     state: I8,
     match_score: F64,
     t_birth: F64,
-    d_params: F64,
-    d_score: F64,
-    d_cls: I32,
-    d_velocity: F64,
+    params: F64,
+    det_score: F64,
+    det_cls: I32,
+    velocity: F64,
+    has_velocity: bool,
+    drop: bool,
+    order: I64,
+    nms_iou: F64,
     key: bool,
     kalman: bool,
-    has_velocity: bool,
     frame_count: int,
     next_id: int,
     stamp: float,
@@ -124,15 +131,43 @@ def step_dense(
     I64, F64, F64, I32, F64, I8, I8, I32, I32, I32, F64, F64, F64, int,
 ]:  # fmt: skip
     """``advance``'s 27 outputs (the next track table's columns, then the reported tracks),
-    then the number of births. The tracks are TrackTable's first 12 columns; the detections
-    are pre-processed (NMS, world frame); ``assoc`` is the per-class association table (the
-    columns above), ``options`` advance's. Raises InfeasibleBlock."""
+    then the number of births, for an ordinary frame past ``Tracker.step``'s argument checks.
+    The tracks are ``TrackTable.step_columns``; the detections as they came (``drop``: the
+    degenerate ones are dropped here, as nms.drop_degenerate does), walked by NMS in
+    ``order`` (or in the STABLE order when it is empty); ``velocity`` is (0, 2) without
+    ``has_velocity``. ``assoc`` is the per-class association table (the columns above),
+    ``options`` advance's. Raises InfeasibleBlock."""
+    # Pre-processing (Tracker._preprocess).
+    n = params.shape[0]
+    keep = np.empty(n, dtype=np.int64)
+    n_keep = 0
+    for i in range(n):
+        ok = True
+        if drop:
+            ok = math.isfinite(det_score[i])
+            for c in range(7):
+                ok = ok and math.isfinite(params[i, c])
+            ok = ok and min(params[i, L], params[i, W], params[i, H]) > 0
+            if has_velocity:
+                ok = ok and math.isfinite(velocity[i, 0]) and math.isfinite(velocity[i, 1])
+        if ok:
+            keep[n_keep] = i
+            n_keep += 1
+    b_params, b_score, b_cls, b_vel = _rows(params, det_score, det_cls, velocity, keep[:n_keep])
+    if order.size == 0 and n_keep > 0:
+        # np.lexsort((-score, cls)): by class, then descending score, ties in input order.
+        by_score = np.argsort(-b_score, kind="mergesort")
+        order = by_score[np.argsort(b_cls[by_score], kind="mergesort")]
+    b_cls64 = b_cls.astype(np.int64)
+    kept = nms_walk(b_params, b_cls64, order, nms_iou, exact_vertical)
+    d_params, d_score, d_cls, d_vel = _rows(b_params, b_score, b_cls, b_vel, kept)
+
     # C-ordered (views of C-ordered inputs, copies of strided ones): the kernels below are
-    # compiled for these types and index them without strides (a third of the step).
+    # compiled for these types and index them without strides (a third of the step); the
+    # detections' columns are C-ordered copies already.
     x_c, p_c = np.ascontiguousarray(x), np.ascontiguousarray(p)
-    params_c, velocity_c = np.ascontiguousarray(d_params), np.ascontiguousarray(d_velocity)
     n_t = ids.shape[0]
-    n_d = params_c.shape[0]
+    n_d = d_params.shape[0]
     n_cls = assoc.shape[0]
 
     # Predict (Tracker._predict) and the predicted boxes (motion.predicted_boxes).
@@ -171,7 +206,7 @@ def step_dense(
             n_pool += 1
         if is_high[i]:
             n_cand += 1
-    pool_params = np.empty((n_pool, params_c.shape[1]))
+    pool_params = np.empty((n_pool, d_params.shape[1]))
     pool_cls = np.empty(n_pool, dtype=np.int64)
     row = np.full(n_d, -1, dtype=np.int64)
     cand = np.empty(n_cand, dtype=np.int64)
@@ -181,7 +216,7 @@ def step_dense(
     h = 0
     for i in range(n_d):
         if is_high[i] or is_low[i]:
-            pool_params[k] = params_c[i]
+            pool_params[k] = d_params[i]
             pool_cls[k] = d_cls[i]
             row[i] = k
             k += 1
@@ -247,8 +282,25 @@ def step_dense(
         ids, cls, x_c, p_c, t_update, score, hits, age, tsu, state, match_score, t_birth,
         x_pred, p_pred, pred_box, update,
         matched_det, matched_trk, extended, unmatched_det,
-        params_c, d_score, d_cls, velocity_c,
+        d_params, d_score, d_cls, d_vel,
         key, kalman, has_velocity, policy, frame_count, next_id,
         stamp, coast_decay, options, r, p0,
     )  # fmt: skip
     return out + (unmatched_det.shape[0],)  # noqa: RUF005 (numba types a tuple's +, not *)
+
+
+@helper
+def _rows(params: F64, score: F64, cls: I32, velocity: F64, rows: I64) -> tuple[F64, F64, I32, F64]:
+    """Boxes.take: the listed rows of every column (velocity only when it has rows)."""
+    n = rows.size
+    out_p = np.empty((n, 7))
+    out_s = np.empty(n)
+    out_c = np.empty(n, dtype=np.int32)
+    out_v = np.empty((n if velocity.shape[0] > 0 else 0, 2))
+    for k in range(n):
+        i = rows[k]
+        out_p[k] = params[i]
+        out_s[k], out_c[k] = score[i], cls[i]
+        if out_v.shape[0] > 0:
+            out_v[k] = velocity[i]
+    return out_p, out_s, out_c, out_v

@@ -39,6 +39,7 @@ from simpletrack.core.config import (
     Metric,
     MotionModel,
     OutputPolicy,
+    TieOrder,
     TrackerConfig,
     TrackScore,
     VerticalOverlap,
@@ -46,7 +47,7 @@ from simpletrack.core.config import (
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import UpdateKind
 from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
-from simpletrack.core.nms import drop_degenerate, nms
+from simpletrack.core.nms import NMS_WALK_BOXES, drop_degenerate, nms, nms_order
 from simpletrack.core.pair_kernels import NOT_OVERLAP, class_table, overlap_kind
 from simpletrack.core.pairs import DENSE_CELLS, PairTable, far_cost
 from simpletrack.core.reassociation import reassociate
@@ -63,7 +64,7 @@ from simpletrack.core.step_kernels import (
     TWO_STAGE,
     WIDENED,
     InfeasibleBlock,
-    step_dense,
+    step_frame,
 )
 from simpletrack.core.step_kernels import MAX_AGE as ASSOC_MAX_AGE
 
@@ -74,6 +75,7 @@ _POLICY_CODES = {
     OutputPolicy.NUSCENES: POLICY_NUSCENES,
 }
 _NO_VELOCITY = np.zeros((0, 2))
+_NO_ORDER = np.zeros(0, dtype=np.int64)  # step_frame: the STABLE order, computed there
 _METRICS = tuple(Metric)
 I64 = npt.NDArray[np.int64]
 
@@ -152,15 +154,23 @@ class Tracker:
         if len(frame.boxes) and int(frame.boxes.cls.max(initial=0)) >= len(self.config.classes):
             raise ValueError(f"class code {int(frame.boxes.cls.max())} has no config")
         self.frame_count += 1
+        n = len(frame.boxes)
+        # Every class block dense (core/pairs.py) and every NMS class walked whole (nms.py),
+        # whatever the boxes dropped and suppressed; class codes checked by nms() there.
+        if (
+            self._fused
+            and not frame.after_gap
+            and n * len(self.tracks) <= DENSE_CELLS
+            and n <= NMS_WALK_BOXES
+            and (n == 0 or frame.boxes.cls.min() >= 0)
+        ):
+            try:
+                return self._step_frame(frame)
+            except InfeasibleBlock:
+                pass  # the staged path raises scipy's error for the same block
         dets = self._preprocess(frame)
         key = frame.key_frame
         tr = self.tracks
-        # Every class block dense (core/pairs.py) whatever the thresholds keep.
-        if self._fused and not frame.after_gap and len(dets) * len(tr) <= DENSE_CELLS:
-            try:
-                return self._step_dense(tr, dets, key, frame.stamp)
-            except InfeasibleBlock:
-                pass  # the staged path raises scipy's error for the same block
 
         x_pred, p_pred = self._predict(tr, frame.stamp)
         pred_box = predicted_boxes(x_pred)
@@ -202,30 +212,40 @@ class Tracker:
             unmatched_det, dets, key, frame.stamp,
         )  # fmt: skip
 
-    def _step_dense(self, tr: TrackTable, dets: Boxes, key: bool, stamp: float) -> Tracks:
+    def _step_frame(self, frame: Frame) -> Tracks:
+        boxes, drop, order = frame.boxes, True, _NO_ORDER
+        if frame.pose is not None or self.config.tie_order is TieOrder.REFERENCE:
+            boxes, drop = self._clean(frame), False
+            if self.config.tie_order is TieOrder.REFERENCE and len(boxes):
+                order = nms_order(boxes, TieOrder.REFERENCE)
         kalman = self.config.motion is MotionModel.KALMAN
-        velocity = dets.velocity
-        out = step_dense(
-            tr.ids, tr.cls, tr.x, tr.p, tr.t_update, tr.score, tr.hits, tr.age,
-            tr.time_since_update, tr.state, tr.match_score, tr.t_birth,
-            dets.params, dets.score, dets.cls, _NO_VELOCITY if velocity is None else velocity,
-            key, kalman, velocity is not None, self.frame_count, self.next_id, float(stamp),
+        velocity = _NO_VELOCITY if boxes.velocity is None else _writable(boxes.velocity)
+        out = step_frame(
+            *self.tracks.step_columns(),
+            _writable(boxes.params), _writable(boxes.score), _writable(boxes.cls), velocity,
+            boxes.velocity is not None, drop, order, self._nms_iou,
+            frame.key_frame, kalman, self.frame_count, self.next_id, float(frame.stamp),
             self._association, self._overlap_kind,
             self.config.vertical_overlap is VerticalOverlap.EXACT,
             self.config.non_key.score_high, self.config.non_key.score_low,
             self._kf.q, self._kf.r, self._kf.p0, self._policy, self.config.coast_score_decay,
             self._class_options,
         )  # fmt: skip
-        return self._keep(out[:-1], out[-1] if key else 0, stamp, kalman)
+        return self._keep(out[:-1], out[-1] if frame.key_frame else 0, frame.stamp, kalman)
 
     # ------------------------------------------------------------------ stages
-    def _preprocess(self, frame: Frame) -> Boxes:
+    def _clean(self, frame: Frame) -> Boxes:
+        """The frame's boxes without the degenerate ones, in the world frame."""
         boxes = frame.boxes
         keep = drop_degenerate(boxes)
         if keep.size < len(boxes):
             boxes = boxes.take(keep)
         if frame.pose is not None:
             boxes = transform_boxes(boxes, frame.pose)
+        return boxes
+
+    def _preprocess(self, frame: Frame) -> Boxes:
+        boxes = self._clean(frame)
         return boxes.take(
             nms(
                 boxes,
@@ -528,8 +548,7 @@ class Tracker:
         kalman = self.config.motion is MotionModel.KALMAN
         velocity = dets.velocity
         out = advance(
-            tr.ids, tr.cls, tr.x, tr.p, tr.t_update, tr.score, tr.hits, tr.age,
-            tr.time_since_update, tr.state, tr.match_score, tr.t_birth,
+            *tr.step_columns(),
             x_pred, p_pred, pred_box, update,
             matched_det, matched_trk, extended, unmatched_det,
             dets.params, dets.score, dets.cls, _NO_VELOCITY if velocity is None else velocity,
@@ -625,6 +644,12 @@ def _overlap_kind(metric: Metric) -> int:
     if metric in (Metric.L2, Metric.MAHALANOBIS):
         return NOT_OVERLAP
     return overlap_kind(*geometry.overlap_flags(metric))
+
+
+def _writable(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """``a``, or a copy where it is read-only (decoded straight from a buffer): the compiled
+    step is typed for writable arrays (what the staged path's copies always were)."""
+    return a if a.flags.writeable else a.copy()
 
 
 def _or(value: float | None, off: float) -> float:
