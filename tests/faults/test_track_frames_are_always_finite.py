@@ -7,6 +7,7 @@ non-finite frame, and numpy's warnings, are checked on their own below."""
 from __future__ import annotations
 
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -152,6 +153,13 @@ def test_a_track_frame_with_inf_is_refused_as_internal_error_naming_column_and_r
         5,
     )
     assert "row 1" in r.detail and "reset" in r.detail
+    # Finite values whose sum overflows float32 are finite all the same; a NaN among them is
+    # still found, at its row.
+    big = [[3e38, 3e38, 3e38], [3e38, 3e38, 3e38]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nor a RuntimeWarning on stderr, outside the log
+        assert first_non_finite(_tracks(big)) is None
+    assert first_non_finite(_tracks([*big, [0.0, np.nan, 0.0]])) == ("center", 2)
 
 
 def test_numpy_floating_point_errors_are_recorded_not_printed(

@@ -8,6 +8,7 @@ decoder refuses a non-finite track frame, so publishing one would lose every tra
 
 from __future__ import annotations
 
+import math
 from types import TracebackType
 
 import numpy as np
@@ -21,13 +22,18 @@ FLOAT_COLUMNS = tuple(c.name for c in TRACK_COLUMNS if c.finite)
 
 def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
     """The first float column (table order) holding NaN or inf, and the row; None if none."""
-    for name in FLOAT_COLUMNS:
-        values = getattr(tracks, name)
-        if values is None:  # an optional column not sent (e.g. no covariance)
-            continue
-        bad = ~np.isfinite(values)
-        if bad.any():
-            return name, int(np.argwhere(bad)[0][0])
+    with np.errstate(over="ignore", invalid="ignore"):  # the sums' own: nothing to report
+        for name in FLOAT_COLUMNS:
+            values = getattr(tracks, name)
+            if values is None:  # an optional column not sent (e.g. no covariance)
+                continue
+            # One reduction per column: a NaN or inf makes the sum NaN or inf. A sum of
+            # finite values that overflows only sends the column to the exact look below.
+            if math.isfinite(values.sum()):
+                continue
+            bad = ~np.isfinite(values)
+            if bad.any():
+                return name, int(np.argwhere(bad)[0][0])
     return None
 
 

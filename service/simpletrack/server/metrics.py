@@ -222,8 +222,8 @@ class Metrics:
         if not vehicle_label:  # make every reason visible at 0 from the first scrape
             for reason in ErrorReason:
                 (self.dropped if reason in DROP_REASONS else self.rejected).labels(reason=reason)
-        for stage in STAGES:
-            self.stage.labels(stage=stage)
+        # Each stage's child, looked up once: a frame observes all four.
+        self.stages = {stage: self.stage.labels(stage=stage) for stage in STAGES}
         for why in ("gap", "time_backwards", "restart", "non_finite"):
             self.resets.labels(reason=why)
         if not vehicle_label:

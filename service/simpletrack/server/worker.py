@@ -5,6 +5,7 @@ frames strictly in order; sensors on different workers never wait for each other
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
@@ -305,7 +306,7 @@ class Worker(threading.Thread):
     def _track(self, item: Inbound) -> None:
         ctx, m = self.ctx, self.ctx.metrics
         t0 = time.perf_counter()
-        m.stage.labels(stage="queue").observe(t0 - item.received_at)
+        m.stages["queue"].observe(t0 - item.received_at)
         vehicle, sensor = ctx.keys.sensor_of(item.key) or ("", "")
         if not (NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor)):
             # No errors key can be derived from a key like this: count and log only.
@@ -316,7 +317,7 @@ class Worker(threading.Thread):
 
         decoded = decode_detection_frame(item.payload, ctx.limits, ctx.class_codes)
         t1 = time.perf_counter()
-        m.stage.labels(stage="decode").observe(t1 - t0)
+        m.stages["decode"].observe(t1 - t0)
         if isinstance(decoded, Rejection):
             self._refuse(item, vehicle, sensor, state, decoded)
             return
@@ -386,7 +387,7 @@ class Worker(threading.Thread):
             self._refuse(item, vehicle, sensor, state, r)
             return
         t2 = time.perf_counter()
-        m.stage.labels(stage="track").observe(t2 - t1)
+        m.stages["track"].observe(t2 - t1)
 
         with fp:
             wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
@@ -411,20 +412,21 @@ class Worker(threading.Thread):
             self.outbox.tracks(vehicle, sensor, payload)
         now_ns = time.time_ns()
         t3 = time.perf_counter()
-        m.stage.labels(stage="publish").observe(t3 - t2)
+        m.stages["publish"].observe(t3 - t2)
         m.end_to_end.observe(max(0.0, (now_ns - stamp_ns) * 1e-9))
         m.service_latency.observe((now_ns - item.received_ns) * 1e-9)
         m.count_tracked(vehicle)
         m.active_tracks.inc(state.tracked(arrival, len(wire)))
-        log.debug(
-            "frame_tracked",
-            vehicle=vehicle,
-            sensor=sensor,
-            seq=seq,
-            boxes=len(decoded.boxes),
-            tracks=len(wire),
-            ms=round((t3 - t0) * 1e3, 3),
-        )
+        if log.enabled(logging.DEBUG):  # not even the fields' cost otherwise
+            log.debug(
+                "frame_tracked",
+                vehicle=vehicle,
+                sensor=sensor,
+                seq=seq,
+                boxes=len(decoded.boxes),
+                tracks=len(wire),
+                ms=round((t3 - t0) * 1e3, 3),
+            )
 
     def _plausible(
         self, vehicle: str, sensor: str, seq: int, decoded: DecodedDetections, item: Inbound
