@@ -65,16 +65,23 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             assert fleet.wait_for_service(10)
             wait_for(lambda: all(len(m.metrics()) > 0 for m in group.members.values()), 10)
             fleet.start()
-            wait_for(lambda: fleet.k >= 30, 20, "3 s of frames")
+            # The shortest KITTI sequence here has 144 frames: the rolling restart comes
+            # back with 7 s to go (it was 4.9 s, and CI once saw it get nothing), room for
+            # a start (1.3-1.4 s here beside the busy members) and its takeovers on a
+            # slower machine.
+            wait_for(lambda: fleet.k >= 25, 20, "2.5 s of frames")
             killed = group.remove("m-b")
             killed.stop(signal.SIGKILL)
-            wait_for(lambda: fleet.k >= 55, 20, "2.5 s after the kill")
+            wait_for(lambda: fleet.k >= 45, 20, "2 s after the kill")
             group.add("m-d")
-            wait_for(lambda: fleet.k >= 80, 20, "2.5 s after the join")
+            wait_for(lambda: fleet.k >= 60, 20, "1.5 s after the join")
             group.remove("m-a").stop(signal.SIGTERM)
-            wait_for(lambda: fleet.k >= 95, 20, "1.5 s after the stop")
-            group.add("m-a")  # back under its name: its sensors come back to it
+            wait_for(lambda: fleet.k >= 72, 20, "1.2 s after the stop")
+            back_k = fleet.k
+            back = group.add("m-a")  # back under its name: its sensors come back to it
             back_ns = time.time_ns()
+            wait_for(lambda: back.http("/readyz")[0] == 200, 30, "m-a ready again")
+            ready_k = fleet.k
             fleet.done.wait(FRAMES * PERIOD_S + 10)
             n = fleet.n  # the shortest sequence's length, if under FRAMES
             deadline = time.monotonic() + 10
@@ -96,7 +103,16 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
                 metric(m.metrics(), "simpletrack_handoffs_total", direction="in") for m in survivors
             )
             assert failovers > 0 and handoffs > 0
-            assert planner.instances(back_ns)["m-a"] > 0, "the restarted member got nothing back"
+            assert planner.instances(back_ns)["m-a"] > 0, (
+                "the restarted member got nothing back",
+                f"stopped at frame {back_k}, ready at {ready_k} of {n}",
+                Counter(e.get("event") for e in back.logs()),
+                back.log_path.read_text()[-3000:],
+            )
+            # A Zenoh callback's exception is work lost without a word (a member joining
+            # heard tracks before its workers existed and dropped what they said).
+            failed = [p.name for p in tmp_path.glob("*.log") if "Traceback" in p.read_text()]
+            assert not failed, failed
             if through == "owned":
                 for m in survivors:
                     values = m.metrics()

@@ -316,7 +316,9 @@ class Service:
         sensor = f"{names[0]}/{names[1]}"
         if self.membership.role(sensor) is Role.NONE:
             return
-        if self._worker_of(*names).sensors.get(sensor) is not None:
+        # Heard from the start of the settle time on, before the workers exist (none holds
+        # a sensor yet then).
+        if self._workers and self._worker_of(*names).sensors.get(sensor) is not None:
             return  # held here: these are this member's own tracks, nothing to learn
         out = decode_track_frame(sample.payload.to_bytes())
         if isinstance(out, Rejection):
