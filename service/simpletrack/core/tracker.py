@@ -148,7 +148,18 @@ class Tracker:
         self.last_stamp: float | None = None
 
     # ------------------------------------------------------------------ the frame
-    def step(self, frame: Frame) -> Tracks:
+    def step(self, frame: Frame, r: npt.NDArray[np.float64] | None = None) -> Tracks:
+        """Track one frame. ``r``: this frame's measurement noise (7, 7) instead of the
+        configured one (a fused vehicle's noisier sensor, core/vehicle.py)."""
+        if r is None:
+            return self._step(frame)
+        configured, self._kf.r = self._kf.r, np.asarray(r, dtype=np.float64)
+        try:
+            return self._step(frame)
+        finally:
+            self._kf.r = configured
+
+    def _step(self, frame: Frame) -> Tracks:
         if self.last_stamp is not None and frame.stamp < self.last_stamp:
             raise ValueError(f"stamp {frame.stamp} is before the last one {self.last_stamp}")
         if len(frame.boxes) and int(frame.boxes.cls.max(initial=0)) >= len(self.config.classes):

@@ -1,0 +1,64 @@
+"""The vehicle's reorder buffer (core/reorder.py): frames go in stamp order whatever order
+they arrived in within the window; a dead sensor costs the window, then nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simpletrack.core.reorder import ReorderBuffer
+
+SENSORS = ("lidar", "camera")
+
+
+def _frames(seconds: float) -> list[tuple[str, int, int]]:
+    """(sensor, seq, stamp_ns): lidar 10 Hz, camera 15 Hz."""
+    out = [("lidar", k, k * 100_000_000) for k in range(int(seconds * 10))]
+    out += [("camera", k, k * 66_666_667) for k in range(int(seconds * 15))]
+    return out
+
+
+def _run(
+    arrivals: list[tuple[float, tuple[str, int, int]]], window: float
+) -> list[tuple[str, int, int]]:
+    buf: ReorderBuffer[tuple[str, int, int]] = ReorderBuffer(SENSORS, window, 1.0)
+    out: list[tuple[str, int, int]] = []
+    for now, f in sorted(arrivals, key=lambda a: a[0]):
+        buf.push(f[0], f[1], f[2], f, now)
+        out += buf.pop_ready(now)
+    return out + buf.flush()
+
+
+def test_shuffled_arrivals_within_the_window_come_out_in_stamp_order() -> None:
+    frames = _frames(3.0)
+    want = sorted(frames, key=lambda f: (f[2], SENSORS.index(f[0]), f[1]))
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        # Each frame arrives 10-150 ms after its stamp (a camera's detector), each sensor's
+        # own frames in order.
+        arrivals = []
+        for sensor in SENSORS:
+            now = 0.0
+            for f in (f for f in frames if f[0] == sensor):
+                now = max(now, f[2] * 1e-9 + rng.uniform(0.01, 0.15))
+                arrivals.append((now, f))
+        assert _run(arrivals, window=0.3) == want
+
+
+def test_a_dead_sensor_delays_the_others_by_the_window_then_not_at_all() -> None:
+    buf: ReorderBuffer[int] = ReorderBuffer(SENSORS, 0.3, 1.0)
+    buf.push("camera", 0, 0, -1, now=0.0)
+    assert buf.pop_ready(0.0) == [-1]  # the lidar was never heard: not waited for
+    buf.push("lidar", 0, 10, 0, now=0.01)
+    assert buf.pop_ready(0.01) == []  # the camera is live and has not passed stamp 10
+    assert buf.due() == 0.01 + 0.3
+    assert buf.pop_ready(0.30) == []
+    assert buf.pop_ready(0.31) == [0]  # the window
+    buf.push("lidar", 1, 20, 1, now=1.5)  # the camera silent for over silent_after_s
+    assert buf.pop_ready(1.5) == [1]
+
+
+def test_equal_stamps_go_in_the_configured_sensor_order() -> None:
+    buf: ReorderBuffer[str] = ReorderBuffer(SENSORS, 0.3, 1.0)
+    buf.push("camera", 7, 100, "camera", now=0.0)
+    buf.push("lidar", 3, 100, "lidar", now=0.0)
+    assert buf.flush() == ["lidar", "camera"]
