@@ -21,6 +21,11 @@ def _run(
     arrivals: list[tuple[float, tuple[str, int, int]]], window: float
 ) -> list[tuple[str, int, int]]:
     buf: ReorderBuffer[tuple[str, int, int]] = ReorderBuffer(SENSORS, window, 1.0)
+    # Both sensors heard once before: a sensor never heard is not waited for (its first
+    # frames may then be late, which the vehicle tracker re-processes).
+    for sensor in SENSORS:
+        buf.push(sensor, -1, -1, (sensor, -1, -1), now=-0.5)
+    buf.pop_ready(-0.5)
     out: list[tuple[str, int, int]] = []
     for now, f in sorted(arrivals, key=lambda a: a[0]):
         buf.push(f[0], f[1], f[2], f, now)
