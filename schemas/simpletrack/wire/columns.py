@@ -163,6 +163,10 @@ class TrackArrays:
     covariance: F32 | None = None  # (N, 21) upper triangle of [x, y, z, vx, vy, vz]
     age_s: F64 | None = None  # (N,) seconds from birth to this frame's stamp
     time_since_update_s: F64 | None = None  # (N,) seconds from the last update
+    # A VehicleTrackFrame's (None in a sensor's TrackFrame): the existence probability, and
+    # (N, S) the stamp of each of the vehicle's sensors' last update (-1: never).
+    existence: F64 | None = None
+    sensor_stamp_ns: I64 | None = None
 
     def __len__(self) -> int:
         return int(self.id.shape[0])

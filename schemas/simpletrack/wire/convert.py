@@ -13,6 +13,7 @@ and ``size`` columns and float64 scores. Class codes index a table of names on b
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -24,6 +25,7 @@ from simpletrack.wire.columns import (
     F32,
     F64,
     I32,
+    I64,
     BoxArrays,
     TrackArrays,
     covariance_from_upper,
@@ -45,6 +47,7 @@ __all__ = [
     "track_boxes_from_wire",
     "tracks_from_wire",
     "tracks_to_wire",
+    "vehicle_tracks_to_wire",
     "wire_states",
 ]
 
@@ -109,6 +112,17 @@ def tracks_to_wire(tracks: Tracks, id_base: int, classes: tuple[str, ...]) -> Tr
         covariance=None if cov is None else covariance_to_upper(cov),
         age_s=_f64(tracks.age_s),
         time_since_update_s=_f64(tracks.time_since_update_s),
+    )
+
+
+def vehicle_tracks_to_wire(
+    tracks: Tracks, existence: F64, sensor_stamp_ns: I64, classes: tuple[str, ...]
+) -> TrackArrays:
+    """A vehicle's tracks (core/vehicle.py) as the columns of a VehicleTrackFrame."""
+    return replace(
+        tracks_to_wire(tracks, 0, classes),
+        existence=existence.astype(np.float64),
+        sensor_stamp_ns=sensor_stamp_ns.astype(np.int64),
     )
 
 

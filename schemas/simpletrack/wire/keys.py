@@ -19,6 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 SERVICE_CHUNK = "@simpletrack"
+# A fused vehicle's stream: <prefix>/<vehicle>/@vehicle/tracks. A verbatim chunk: ``*``
+# never matches it, and no sensor can be so named (NAME_PATTERN).
+VEHICLE_STREAM = "@vehicle"
 DETECTIONS, TRACKS, ERRORS = "detections", "tracks", "errors"
 
 
@@ -42,6 +45,10 @@ class Keys:
     def liveliness(self, instance: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{instance}"
 
+    def fusion_token(self, instance: str = "*") -> str:
+        """The liveliness token of a member that can fuse vehicles (server/streams.py)."""
+        return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/fusion"
+
     def status(self, instance: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/status"
 
@@ -51,6 +58,13 @@ class Keys:
     @property
     def all_tracks(self) -> str:
         return f"{self.prefix}/*/*/{TRACKS}"
+
+    def vehicle_tracks(self, vehicle: str) -> str:
+        return f"{self.prefix}/{vehicle}/{VEHICLE_STREAM}/{TRACKS}"
+
+    @property
+    def all_vehicle_tracks(self) -> str:
+        return f"{self.prefix}/*/{VEHICLE_STREAM}/{TRACKS}"
 
     def handoff(self, instance: str = "*", vehicle: str = "*", sensor: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/handoff/{vehicle}/{sensor}"

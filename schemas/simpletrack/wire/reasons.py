@@ -33,6 +33,9 @@ class ErrorReason(StrEnum):
     SEQ_NOT_INCREASING = "seq_not_increasing"
     DUPLICATE_SEQ = "duplicate_seq"  # same seq as the last processed frame: ignored
     TOO_MANY_SENSORS = "too_many_sensors"
+    # Vehicle fusion: a fused sensor's frame the vehicle's tracker cannot take.
+    LATE = "late"  # older than the vehicle's re-processing history
+    SENSOR_FLAGGED = "sensor_flagged"  # its sensor's clock or extrinsic is off: kept out
     # Load shedding: the frame was valid as far as anyone looked, but not processed.
     DROPPED_QUEUE_FULL = "dropped_queue_full"  # backpressure drop_oldest: the oldest goes
     DROPPED_SHUTDOWN = "dropped_shutdown"  # arrived after intake stopped, or drain timed out

@@ -688,7 +688,12 @@ class VehicleTracker:
 
     @property
     def next_id(self) -> int:
+        """The lowest id no track of this vehicle has had."""
         return self.tracker.next_id
+
+    @next_id.setter
+    def next_id(self, value: int) -> None:
+        self.tracker.next_id = value
 
     def __len__(self) -> int:
         return len(self.tracker.tracks)

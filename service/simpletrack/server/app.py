@@ -35,11 +35,18 @@ from simpletrack.server.plausibility import StartThresholds
 from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, Subscribe, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
+from simpletrack.server.streams import Streams
 from simpletrack.server.subscriptions import Subscriptions
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
-from simpletrack.wire.codec import DecodeLimits, Rejection, decode_track_frame, encode
-from simpletrack.wire.keys import Keys
+from simpletrack.wire.codec import (
+    DecodeLimits,
+    Rejection,
+    decode_track_frame,
+    decode_vehicle_track_frame,
+    encode,
+)
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import ServiceStatus
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
@@ -84,11 +91,19 @@ class Service:
             on_change=self._on_members,
         )
         self.metrics.members.set(1)
+        self.fusion = settings.fusion.config()
+        self.membership.fuses = self.fusion is not None
+        self.streams = Streams(
+            self.keys,
+            frozenset(settings.fusion.sensors),
+            frozenset(settings.fusion.vehicles),
+            gate=self.membership.fusion_gate,
+        )
         self._shared: Shared | None = None
         self._subscriber: Any = None  # the detections subscriber: undeclared first at stop
         self._token: Any = None
         self._owned: Subscriptions | None = None  # subscribe = "owned"
-        self._handoff_queryable: Any = None
+        self._handoff_queryables: list[Any] = []
 
     # ------------------------------------------------------------------ start
     def start(self) -> None:
@@ -122,6 +137,12 @@ class Service:
             self.membership.start(session)
             # Whose tracks planners already have: a takeover publishes only past them.
             self._declared.append(session.declare_subscriber(self.keys.all_tracks, self._on_tracks))
+            if self.fusion is not None:
+                self._declared.append(
+                    session.declare_subscriber(
+                        self.keys.all_vehicle_tracks, self._on_vehicle_tracks
+                    )
+                )
             self.stop_requested.wait(SETTLE_S)
             if self.membership.twin:
                 raise StartError(
@@ -142,6 +163,11 @@ class Service:
             shared=shared,
             limits=DecodeLimits(max_bytes=s.max_frame_bytes, max_boxes=s.max_boxes),
             start_thresholds=StartThresholds.of(self.config),
+            streams=self.streams,
+            tracker_config=self.config,
+            fusion=self.fusion,
+            per_sensor_output=s.fusion.per_sensor_output,
+            vehicle_frame_id=s.fusion.vehicle_frame_id,
         )
         self._queues = [WorkQueue(s.queue_size) for _ in range(s.workers)]
         self._workers = [Worker(i, q, ctx) for i, q in enumerate(self._queues)]
@@ -165,17 +191,25 @@ class Service:
             self._on_received,
             self._on_dropped,
             wanted=self._wanted if s.group else None,
+            route=self.streams.route,
         )
+        # A fused vehicle's stream keys end in the verbatim chunk @vehicle, which ``*``
+        # does not match: each group key is declared for it too.
+        streams = ["*", VEHICLE_STREAM] if self.fusion is not None else ["*"]
         if s.group:
-            self._declared.append(
-                session.declare_subscriber(
-                    self.keys.checkpoint(s.instance),
-                    lambda sample: self._on_checkpoint(intake, sample),
+            for name in streams:
+                self._declared.append(
+                    session.declare_subscriber(
+                        self.keys.checkpoint(s.instance, "*", name),
+                        lambda sample: self._on_checkpoint(intake, sample),
+                    )
                 )
-            )
-            self._handoff_queryable = session.declare_queryable(
-                self.keys.handoff(s.instance), self._on_handoff_query
-            )
+            self._handoff_queryables = [
+                session.declare_queryable(
+                    self.keys.handoff(s.instance, "*", name), self._on_handoff_query
+                )
+                for name in streams
+            ]
         self.misses = misses = MissCounter(intake, self.keys, self.metrics, s.instance, session)
         if s.group and s.subscribe is Subscribe.OWNED:
             self._owned = Subscriptions(
@@ -185,6 +219,7 @@ class Service:
                 lambda: intake.handler(misses),
                 misses.on_miss,
                 s.history_frames,
+                stream_of=self.streams.stream,
             )
             self._owned.start()
             self._owned.settle(timeout=5.0)  # this member's share subscribed before its token
@@ -204,9 +239,17 @@ class Service:
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )
-        self._declared.append(
-            session.declare_queryable(self.keys.snapshot(s.instance), self._on_snapshot_query)
-        )
+        for name in streams:
+            self._declared.append(
+                session.declare_queryable(
+                    self.keys.snapshot(s.instance, "*", name), self._on_snapshot_query
+                )
+            )
+        if self.fusion is not None and s.group:
+            # Before the member's own token: no member may see it without its ability.
+            self._declared.append(
+                session.liveliness().declare_token(self.keys.fusion_token(s.instance))
+            )
         self._token = session.liveliness().declare_token(self.keys.liveliness(s.instance))
         self.membership.declared = True
         if self._routers is not None:
@@ -285,8 +328,9 @@ class Service:
         return not self._client or self._routers_connected() > 0
 
     def _worker_of(self, vehicle: str, sensor: str) -> Worker:
-        """The worker a sensor's frames go to (the intake's routing)."""
-        key = self.keys.detections(vehicle, sensor)
+        """The worker a stream's frames go to (the intake's routing: a fused sensor's
+        vehicle's)."""
+        key = self.streams.route(self.keys.detections(vehicle, sensor))
         return self._workers[worker_index(key, len(self._workers))]
 
     # ------------------------------------------------------------------ the group
@@ -302,7 +346,7 @@ class Service:
         """Zenoh callback, every frame: only frames of sensors this member owns or stands
         by for go on; the others are counted (the price of the wide subscription)."""
         names = self.keys.sensor_of(key)
-        if names is None or self.membership.role(f"{names[0]}/{names[1]}") is not Role.NONE:
+        if names is None or self.membership.role(self.streams.stream(*names)) is not Role.NONE:
             return True
         self.metrics.not_owned.inc()
         return False
@@ -310,34 +354,60 @@ class Service:
     def _on_tracks(self, sample: zenoh.Sample) -> None:
         """Tracks frames of sensors this member owns or stands by for: how far planners
         have them, and the ids they hold (a takeover neither repeats nor reuses them)."""
-        names = self.keys.sensor_of(str(sample.key_expr))
-        if names is None or self._shared is None or len(self.membership.members) <= 1:
-            return  # alone, the only tracks are this member's own
-        sensor = f"{names[0]}/{names[1]}"
-        if self.membership.role(sensor) is Role.NONE:
+        names = self._heard_stream(sample)
+        if names is None:
             return
-        # Heard from the start of the settle time on, before the workers exist (none holds
-        # a sensor yet then).
-        if self._workers and self._worker_of(*names).sensors.get(sensor) is not None:
-            return  # held here: these are this member's own tracks, nothing to learn
         out = decode_track_frame(sample.payload.to_bytes())
         if isinstance(out, Rejection):
             return
         frame, tracks = out
         next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
+        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, None)
+
+    def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
+        """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""
+        names = self._heard_stream(sample)
+        if names is None:
+            return
+        out = decode_vehicle_track_frame(sample.payload.to_bytes())
+        if isinstance(out, Rejection):
+            return
+        frame, tracks = out
+        next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
+        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq)
+
+    def _heard_stream(self, sample: zenoh.Sample) -> tuple[str, str] | None:
+        """The stream of a tracks sample worth learning from: one this member owns or
+        stands by for and does not hold (its own tracks teach nothing)."""
+        names = self.keys.sensor_of(str(sample.key_expr))
+        if names is None or self._shared is None or len(self.membership.members) <= 1:
+            return None  # alone, the only tracks are this member's own
+        stream = f"{names[0]}/{names[1]}"
+        if self.membership.role(stream) is Role.NONE:
+            return None
+        # Heard from the start of the settle time on, before the workers exist (none holds
+        # a sensor yet then).
+        if self._workers and self._worker_of(*names).sensors.get(stream) is not None:
+            return None
+        return names
+
+    def _heard(self, stream: str, stamp_ns: int, next_id: int, seq: int | None) -> None:
+        assert self._shared is not None
         published = self._shared.published
         with self._shared.lock:
-            old = published.get(sensor)
+            old = published.get(stream)
             if old is not None:
-                published[sensor] = Heard(
-                    max(old.stamp_ns, frame.stamp_ns), max(old.next_id, next_id)
+                published[stream] = Heard(
+                    max(old.stamp_ns, stamp_ns),
+                    max(old.next_id, next_id),
+                    seq if old.seq is None else max(old.seq, seq if seq is not None else old.seq),
                 )
             elif len(published) < MAX_PUBLISHED:
-                published[sensor] = Heard(frame.stamp_ns, next_id)
+                published[stream] = Heard(stamp_ns, next_id, seq)
 
     def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
         names = self.keys.service_sensor_of(str(sample.key_expr))
-        if names is not None and all(NAME_RE.fullmatch(n) for n in names):
+        if names is not None and _stream_names(*names):
             intake.checkpoint(sample, self.keys.detections(*names))
 
     def _on_handoff_query(self, query: zenoh.Query) -> None:
@@ -347,7 +417,7 @@ class Service:
         asker = query.parameters.get("from")
         if (
             names is None
-            or not all(NAME_RE.fullmatch(n) for n in names)
+            or not _stream_names(*names)
             or asker is None
             or asker == self.settings.instance
         ):
@@ -443,7 +513,7 @@ class Service:
         asked = zenoh.KeyExpr(str(query.key_expr))
         parts = str(query.key_expr).split("/")
         vehicle, sensor = parts[-2], parts[-1]
-        if NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor):
+        if _stream_names(vehicle, sensor):
             targets = [self._worker_of(vehicle, sensor)]
         else:
             targets = list(self._workers)
@@ -515,9 +585,8 @@ class Service:
             undeclare(self._token)
             self._token = None
         self._await_handoffs()
-        if self._handoff_queryable is not None:
-            undeclare(self._handoff_queryable)
-            self._handoff_queryable = None
+        undeclare(*self._handoff_queryables)
+        self._handoff_queryables = []
         undeclare(*self._declared)
         self._declared.clear()
         self.membership.close()
@@ -543,6 +612,13 @@ class Service:
             time.sleep(0.02)
             held = sum(len(w.sensors) for w in self._workers)
         log.info("handoffs_done" if not held else "handoffs_timed_out", left_with_standby=held)
+
+
+def _stream_names(vehicle: str, sensor: str) -> bool:
+    """A stream's names: a sensor's, or a fused vehicle's (``@vehicle``)."""
+    return bool(NAME_RE.fullmatch(vehicle)) and (
+        sensor == VEHICLE_STREAM or bool(NAME_RE.fullmatch(sensor))
+    )
 
 
 def run(settings: ServiceSettings) -> int:

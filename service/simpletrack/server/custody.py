@@ -23,9 +23,10 @@ from simpletrack.server.registry import SensorRegistry
 from simpletrack.server.sensors import SensorState
 from simpletrack.server.snapshots import ID_BLOCK
 from simpletrack.server.standby import Standby
+from simpletrack.server.vehicles import VehicleState
 from simpletrack.wire.codec import DecodeLimits, Rejection, decode_message, encode
 from simpletrack.wire.header import peek_header
-from simpletrack.wire.keys import Keys
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import SensorSnapshot
 
 log = get_logger("group")
@@ -53,6 +54,7 @@ class Takeover:
     snapshot: SensorSnapshot | None  # the state taken over
     heard: Heard | None  # the last tracks planners got, from any member
     state: SensorState | None = None
+    vehicle_state: VehicleState | None = None  # a fused vehicle's, instead of ``state``
     replay: list[Inbound] = field(default_factory=list)
     missed: int = 0  # frames after the state that neither the standby nor the vehicle kept
     from_cache: int = 0  # frames replayed from the vehicle's cache
@@ -74,6 +76,14 @@ class Takeover:
         return self.heard.stamp_ns if self.source == "handoff" else self.heard.stamp_ns - 1
 
     @property
+    def published_seq(self) -> int | None:
+        """A fused vehicle's: the message seq planners have up to (as ``published_stamp_ns``:
+        after a failover the last heard is sent again)."""
+        if self.heard is None or self.heard.seq is None:
+            return None
+        return self.heard.seq if self.source == "handoff" else self.heard.seq - 1
+
+    @property
     def needs_cache(self) -> bool:
         return self.missed > 0
 
@@ -84,6 +94,7 @@ class Heard:
 
     stamp_ns: int
     next_id: int  # above every id heard on the key
+    seq: int | None = None  # a fused vehicle's message seq (its own counter)
 
 
 @dataclass
@@ -119,6 +130,9 @@ class Custody:
         self.standby = Standby(standby_frames)
         self.released: dict[str, Released] = {}
         self.settled: set[str] = set()  # sensors whose takeover was done (held or new)
+        # Called with a stream's key before it is released (a fused vehicle's waiting
+        # frames are applied first, so that its state is exact).
+        self.before_release: Callable[[str], None] = lambda key: None
 
     # ------------------------------------------------------------------ routing
     def role(self, sensor: str) -> Role:
@@ -177,8 +191,14 @@ class Custody:
             source = "lost"
             self.registry.retired[key] = max(self.registry.retired.get(key, 0), heard.next_id)
         t = Takeover(vehicle, sensor, source, snap, heard)
-        if snap is not None:
-            t.state = self.registry.adopt(snap, use_floor=source == "restore")
+        adopted = None if snap is None else self.registry.adopt(snap, use_floor=source == "restore")
+        if isinstance(adopted, VehicleState):
+            t.vehicle_state = adopted
+            t.replay = [f for f in frames if not adopted.covers(f)]
+            if source in ("failover", "handoff"):
+                t.missed = adopted.holes([*t.replay, *waiting])
+            return t
+        t.state = adopted
         t.replay = [f for f in frames if _after(f, t.covered_stamp_ns)]
         if source in ("failover", "handoff") and snap is not None:
             t.missed = _holes(snap.last_seq, [*t.replay, *waiting])
@@ -187,12 +207,20 @@ class Custody:
     def complete(self, t: Takeover, cached: list[Inbound], waiting: Sequence[Inbound] = ()) -> None:
         """Add the frames the vehicle's cache gave (those after the state the standby did
         not keep), count what is still missing, and account for the takeover."""
+        vs = t.vehicle_state
         if cached:
-            have = {stamp_of(f) for f in [*t.replay, *waiting]}
-            extra = [f for f in cached if _after(f, t.covered_stamp_ns) and stamp_of(f) not in have]
+            have = {(f.key, stamp_of(f)) for f in [*t.replay, *waiting]}
+            extra = [
+                f
+                for f in cached
+                if (not vs.covers(f) if vs is not None else _after(f, t.covered_stamp_ns))
+                and (f.key, stamp_of(f)) not in have
+            ]
             t.from_cache = len(extra)
             t.replay += extra  # put in order with the waiting frames by the worker
-            if t.snapshot is not None:
+            if vs is not None:
+                t.missed = vs.holes([*t.replay, *waiting])
+            elif t.snapshot is not None:
                 t.missed = _holes(t.snapshot.last_seq, [*t.replay, *waiting])
         m = self.shared.metrics
         if t.source == "handoff":
@@ -201,11 +229,11 @@ class Custody:
         elif t.source in ("failover", "lost"):
             m.failovers.inc()
             self.shared.count("failovers")
-        if t.missed and t.state is not None:
+        held = t.state if t.state is not None else t.vehicle_state
+        if t.missed and held is not None:
             # Tracks may have been born in the frames lost: new ids start past any of them.
-            st = t.state
-            floor = 0 if t.heard is None else t.heard.next_id - st.id_base
-            st.tracker.next_id = max(st.tracker.next_id + ID_BLOCK, floor)
+            floor = 0 if t.heard is None else t.heard.next_id - held.id_base
+            held.tracker.next_id = max(held.tracker.next_id + ID_BLOCK, floor)
         log.info(
             "sensor_taken_over",
             vehicle=t.vehicle,
@@ -239,9 +267,11 @@ class Custody:
                     )
                 )
 
+        # A fused vehicle's frames are its sensors': every one's cache answers.
+        key = sh.keys.detections(vehicle, "*" if sensor == VEHICLE_STREAM else sensor)
         try:
             sh.session.get(
-                f"{sh.keys.detections(vehicle, sensor)}/@adv/**",
+                f"{key}/@adv/**",
                 zenoh.handlers.Callback(on_reply, lambda: on_done(got)),
                 target=zenoh.QueryTarget.ALL,
                 consolidation=zenoh.ConsolidationMode.NONE,
@@ -299,6 +329,7 @@ class Custody:
         if state is None:
             rel = self.released.get(key)
             return None if rel is None else rel.snapshot
+        self.before_release(key)
         snap = state.snapshot(self.registry.digest)
         # Released first, then gone: a question read without the lock (app.py) must never
         # see the sensor neither held nor released.

@@ -77,6 +77,14 @@ class Membership:
         self._stop = threading.Event()
         self.declared = False  # this instance's own token is out (set by the service)
         self.twin = False
+        # Vehicle fusion (server/streams.py): this instance fuses, and which members hold
+        # the fusion token. A member counts as able from its token's first sight until it
+        # leaves the view (its departure, not a router blip, is what ends it).
+        self.fuses = False
+        self._capable: set[str] = set()
+        self._cap_sub: zenoh.Subscriber[None] | None = None
+        self.on_gate: Callable[[bool], None] | None = None
+        self._gate = False
 
     # ------------------------------------------------------------------ views
     @property
@@ -101,6 +109,15 @@ class Membership:
                 roles[sensor] = role
         return role
 
+    def fusion_gate(self) -> bool:
+        """Whether vehicles are fused now: this instance fuses and so does every member it
+        sees (a member of before fusion holds no fusion token)."""
+        if not self.fuses:
+            return False
+        if not self.enabled:
+            return True
+        return all(m == self.me or m in self._capable for m in self._members)
+
     def owner(self, sensor: str) -> str:
         return ranking(self._members, sensor)[0] if self.enabled else self.me
 
@@ -116,6 +133,10 @@ class Membership:
         self._sub = session.liveliness().declare_subscriber(
             self.keys.liveliness("*"), self._on_token, history=True
         )
+        if self.fuses:
+            self._cap_sub = session.liveliness().declare_subscriber(
+                self.keys.fusion_token("*"), self._on_capability, history=True
+            )
         if self._routers is not None:
             threading.Thread(target=self._tick, name="group", daemon=True).start()
 
@@ -129,6 +150,21 @@ class Membership:
         member = self._member_of(str(sample.key_expr))
         if member is not None:
             self.token(member, sample.kind == zenoh.SampleKind.PUT)
+
+    def _on_capability(self, sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if len(parts) >= 3 and sample.kind == zenoh.SampleKind.PUT:
+            with self._lock:
+                self._capable.add(parts[-2])
+            self._gate_changed()
+
+    def _gate_changed(self) -> None:
+        gate = self.fusion_gate()
+        if gate != self._gate:
+            self._gate = gate
+            log.info("fusion_gate", fusing=gate, members=",".join(sorted(self._members)))
+            if self.on_gate is not None:
+                self.on_gate(gate)
 
     def token(self, member: str, up: bool) -> None:
         """A member's token appeared (``up``) or went."""
@@ -170,6 +206,7 @@ class Membership:
                 return
             self._members = members
             self._roles = {}
+            self._capable -= before - members  # gone: able again only with a new token
         log.info(
             "group_changed",
             members=",".join(sorted(members)),
@@ -178,12 +215,14 @@ class Membership:
         )
         if self._on_change is not None:
             self._on_change(before, members)
+        self._gate_changed()
 
     def close(self) -> None:
         self._stop.set()
-        if self._sub is not None:
-            undeclare(self._sub)
-            self._sub = None
+        for sub in (self._sub, self._cap_sub):
+            if sub is not None:
+                undeclare(sub)
+        self._sub = self._cap_sub = None
 
 
 def undeclare(*entities: Any) -> None:

@@ -230,8 +230,11 @@ class Intake:
         on_received: Callable[[str], None],
         on_dropped: Callable[[Inbound, ErrorReason], None],
         wanted: Callable[[str], bool] | None = None,
+        route: Callable[[str], str] | None = None,
     ) -> None:
+        """``route(key)``: what picks a key's worker (a fused sensor's: its vehicle's)."""
         self._queues = queues
+        self._route = route or (lambda key: key)
         self._block = policy is Backpressure.BLOCK
         self._on_received = on_received
         self._on_dropped = on_dropped
@@ -255,7 +258,7 @@ class Intake:
             return  # before any copy: the cheapest a frame of another member can cost
         item = Inbound(key, sample.payload.to_bytes(), time.time_ns(), time.perf_counter())
         self._on_received(key)
-        self._enqueue(key, item)
+        self._enqueue(self._route(key), item)
 
     def checkpoint(self, sample: zenoh.Sample, detections_key: str) -> None:
         """A checkpoint goes to the worker of the sensor it is of (its own lane)."""

@@ -199,6 +199,28 @@ class Metrics:
         )
         for direction in ("in", "out"):
             self.handoffs.labels(direction=direction)
+        self.fusion_frames = Counter(
+            "simpletrack_fusion_frames",
+            "Fused sensors' frames by what the vehicle's tracker did with them: applied, "
+            "reprocessed (late, within history_s), late (refused), flagged (refused), "
+            "verifying (watched only)",
+            ("outcome",),
+            registry=r,
+        )
+        for outcome in ("applied", "reprocessed", "late", "flagged", "verifying"):
+            self.fusion_frames.labels(outcome=outcome)
+        self.fusion_wait = Histogram(
+            "simpletrack_fusion_wait_seconds",
+            "Fused frames: receipt to release from the vehicle's reorder window",
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.fusion_sensors = Gauge(
+            "simpletrack_fusion_sensors",
+            "Fused sensors of the vehicles held here, by condition",
+            ("condition",),
+            registry=r,
+        )
         # By cause (an enum), never by sensor: the sensor is in the once-per-sensor log line
         # (docs/SERVICE.md, "Plausibility warnings").
         self.implausible = Counter(

@@ -13,7 +13,7 @@ from simpletrack.session import Congestion
 from simpletrack.wire.codec import Rejection
 from simpletrack.wire.codec import encode as encode_message
 from simpletrack.wire.header import peek_header
-from simpletrack.wire.keys import Keys
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import FrameError
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
@@ -122,6 +122,11 @@ class Outbox:
     def tracks(self, vehicle: str, sensor: str, payload: bytes) -> None:
         key = self.keys.tracks(vehicle, sensor)
         self._publisher(self._tracks, key, (vehicle, sensor)).put(payload)
+
+    def vehicle_tracks(self, vehicle: str, payload: bytes) -> None:
+        """A fused vehicle's tracks (``<prefix>/<vehicle>/@vehicle/tracks``)."""
+        key = self.keys.vehicle_tracks(vehicle)
+        self._publisher(self._tracks, key, (vehicle, VEHICLE_STREAM)).put(payload)
 
     def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int, held: bool) -> None:
         """Publish and log a refusal. ``held``: the sensor is one the worker holds (it gets a

@@ -32,8 +32,12 @@ from simpletrack.server.snapshots import (
     snapshot_path,
     write_atomic,
 )
+from simpletrack.server.vehicles import VehicleState
 from simpletrack.wire.codec import encode as encode_message
+from simpletrack.wire.keys import VEHICLE_STREAM
 from simpletrack.wire.models import SensorSnapshot, SensorStatus
+
+Stream = SensorState | VehicleState
 
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
 MAX_RETIRED = 100_000  # id reservations of evicted sensors kept in memory
@@ -57,7 +61,13 @@ class SensorRegistry:
         writer: SnapshotWriter | None,
         state_dir: Path | None,
         reclaim_after_s: float = math.inf,
+        new_vehicle: Callable[[str, int], VehicleState] | None = None,
+        vehicle_of: Callable[[SensorSnapshot], VehicleState] | None = None,
+        vehicle_digest: str = "",
     ) -> None:
+        """``new_vehicle(vehicle, id_floor)`` and ``vehicle_of(snapshot)`` make the fused
+        vehicles' states (server/vehicles.py); ``vehicle_digest`` is what their snapshots
+        must carry to be restored."""
         self.budget, self.metrics, self.new_tracker, self.digest = (
             budget,
             metrics,
@@ -66,29 +76,43 @@ class SensorRegistry:
         )
         self.writer, self.state_dir = writer, state_dir
         self.reclaim_after_s = reclaim_after_s
-        self.sensors: dict[str, SensorState] = {}
+        self.new_vehicle, self.vehicle_of = new_vehicle, vehicle_of
+        self.vehicle_digest = vehicle_digest
+        self.sensors: dict[str, Stream] = {}
         self.retired: dict[str, int] = {}  # evicted sensor -> lowest unused id
         # sensor -> its id floor on disk (every id it published is below); absent: read it
         self.id_floor: dict[str, int] = {}
         self.snapshot_done_at = time.monotonic()
         # Sensors evicted by ``add`` to make room: the worker undeclares their publishers.
-        self.reclaimed_now: list[SensorState] = []
+        self.reclaimed_now: list[Stream] = []
 
     def __len__(self) -> int:
         return len(self.sensors)
 
-    def get(self, key: str) -> SensorState | None:
+    def get(self, key: str) -> Stream | None:
         return self.sensors.get(key)
 
+    def sensor(self, key: str) -> SensorState | None:
+        """A sensor's own stream (None for a vehicle's or none)."""
+        s = self.sensors.get(key)
+        return s if isinstance(s, SensorState) else None
+
     # ------------------------------------------------------------------ admission
-    def add(self, vehicle: str, sensor: str, seq: int) -> SensorState | None:
-        """A new sensor, or None when the budget is spent. Its ids continue above any it
-        published before an eviction. At capacity, this worker's longest silent sensor gives
-        way if it has been silent for over ``reclaim_after_s``."""
+    def add(self, vehicle: str, sensor: str, seq: int) -> Stream | None:
+        """A new stream (a sensor, or a fused vehicle: ``sensor`` ``@vehicle``), or None
+        when the budget is spent. Its ids continue above any it published before an
+        eviction. At capacity, this worker's longest silent stream gives way if it has been
+        silent for over ``reclaim_after_s``."""
         if not self.budget.acquire() and not (self._reclaim_one() and self.budget.acquire()):
             return None
         key = f"{vehicle}/{sensor}"
-        state = SensorState(vehicle, sensor, self.new_tracker(), id_base=self.retired.pop(key, 0))
+        floor = self.retired.pop(key, 0)
+        state: Stream
+        if sensor == VEHICLE_STREAM:
+            assert self.new_vehicle is not None, "a vehicle stream without fusion settings"
+            state = self.new_vehicle(vehicle, floor)
+        else:
+            state = SensorState(vehicle, sensor, self.new_tracker(), id_base=floor)
         self.sensors[key] = state
         self.metrics.active_sensors.inc()
         log.info("sensor_added", vehicle=vehicle, sensor=sensor, seq=seq, id_base=state.id_base)
@@ -102,8 +126,8 @@ class SensorRegistry:
         self.id_floor[key] = floor
         self.retired[key] = max(self.retired.get(key, 0), floor)
 
-    def adopt(self, snap: SensorSnapshot, use_floor: bool = True) -> SensorState | None:
-        """Take over a sensor from a snapshot: the state directory's (before the worker
+    def adopt(self, snap: SensorSnapshot, use_floor: bool = True) -> Stream | None:
+        """Take over a stream from a snapshot: the state directory's (before the worker
         starts, or at a takeover when no member has it) or another member's (a hand-off or
         a checkpoint: ``use_floor`` False, its ids are exact, this disk's floor is older)."""
         key = f"{snap.vehicle}/{snap.sensor}"
@@ -111,6 +135,8 @@ class SensorRegistry:
         if snap.tracker is None:
             self.retired[key] = max(self.retired.get(key, 0), floor)
             return None
+        if snap.sensor == VEHICLE_STREAM:
+            return self._adopt_vehicle(snap, key, floor, use_floor)
         tracker: Tracker | None = None
         id_base = snap.id_base
         if snap.config_digest != self.digest:
@@ -158,6 +184,41 @@ class SensorRegistry:
         )
         return state
 
+    def _adopt_vehicle(
+        self, snap: SensorSnapshot, key: str, floor: int, use_floor: bool
+    ) -> VehicleState | None:
+        state: VehicleState | None = None
+        if snap.config_digest != self.vehicle_digest or self.vehicle_of is None:
+            log.warning("snapshot_config_changed", vehicle=snap.vehicle, sensor=snap.sensor)
+        else:
+            try:
+                state = self.vehicle_of(snap)
+            except Exception:
+                log.error(
+                    "snapshot_tracker_unreadable", exc=True, vehicle=snap.vehicle,
+                    sensor=snap.sensor,
+                )  # fmt: skip
+        if state is None:  # start afresh, but never reuse an id
+            if self.new_vehicle is None:
+                self.retired[key] = max(self.retired.get(key, 0), floor)
+                return None
+            state = self.new_vehicle(snap.vehicle, floor)
+        else:
+            state.tracker.next_id = max(state.tracker.next_id, floor)
+        if not self.budget.acquire():
+            log.error("snapshot_over_max_sensors", vehicle=snap.vehicle, sensor=snap.sensor)
+            self.retired[key] = floor
+            return None
+        self.sensors[key] = state
+        if use_floor:
+            self.metrics.restored.inc()
+        self.metrics.active_sensors.inc()
+        log.info(
+            "sensor_restored", vehicle=snap.vehicle, sensor=snap.sensor, seq=snap.last_seq,
+            id_next=snap.id_next, id_floor=floor,
+        )  # fmt: skip
+        return state
+
     def release(self, key: str) -> None:
         """The sensor now belongs to another member: forget it here (its ids, as far as
         this member took them, stay retired: a fresh start here continues above them)."""
@@ -166,7 +227,7 @@ class SensorRegistry:
             self._evict(key, s, Departure.RELEASED)
 
     # ------------------------------------------------------------------ id reservations
-    def reserve_ids(self, s: SensorState) -> None:
+    def reserve_ids(self, s: Stream) -> None:
         """Before a frame is published: its ids (all below ``s.id_next``) must be below the
         reservation on disk; if not, reserve the next block and wait for it to be durable."""
         if self.state_dir is None:
@@ -209,7 +270,7 @@ class SensorRegistry:
             self.writer.submit(Batch(files, lambda written, failed: None))
 
     # ------------------------------------------------------------------ eviction
-    def evict_idle(self, now: float, idle_s: float) -> list[SensorState]:
+    def evict_idle(self, now: float, idle_s: float) -> list[Stream]:
         """Drop the sensors silent for over ``idle_s`` (over ``reclaim_after_s`` while every
         slot of the budget is taken); their id reservation is written."""
         full = self.budget.used >= self.budget.limit
@@ -232,7 +293,7 @@ class SensorRegistry:
         self.reclaimed_now.append(s)
         return True
 
-    def _evict(self, key: str, s: SensorState, why: Departure) -> None:
+    def _evict(self, key: str, s: Stream, why: Departure) -> None:
         del self.sensors[key]
         self.retired[key] = s.id_next
         while len(self.retired) > MAX_RETIRED:
@@ -263,7 +324,7 @@ class SensorRegistry:
         else:
             self.snapshot_done_at = time.monotonic()
 
-    def _write(self, items: list[tuple[SensorState, bool]]) -> None:
+    def _write(self, items: list[tuple[Stream, bool]]) -> None:
         if self.writer is None or self.state_dir is None:
             return
         files = []
@@ -304,7 +365,11 @@ class SensorRegistry:
                 implausible_frames=s.implausible,
             )
             for s in list(self.sensors.values())
+            if isinstance(s, SensorState)
         ]
+
+    def vehicles(self) -> list[VehicleState]:
+        return [s for s in list(self.sensors.values()) if isinstance(s, VehicleState)]
 
     def names(self) -> list[tuple[str, str]]:
         return [(s.vehicle, s.sensor) for s in list(self.sensors.values())]

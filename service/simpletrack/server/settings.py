@@ -40,6 +40,7 @@ from pydantic_settings import (
 )
 
 from simpletrack.core.config import PRESETS, TrackerConfig, preset
+from simpletrack.core.fusion_config import FusionConfig, SensorTrust
 from simpletrack.server.messages import format_error
 from simpletrack.server.tracker_settings import (
     OneOf,
@@ -198,6 +199,48 @@ class ZenohSettings(BaseModel):
 
 
 Seconds = Annotated[float, Field(gt=0.0)]
+
+
+class FusionSettings(FusionConfig):
+    """Vehicle fusion (docs/SERVICE.md, "Vehicle fusion"): the sensors named here feed one
+    tracker per vehicle; the timing rules are the core's (core/fusion_config.py)."""
+
+    sensors: dict[str, SensorTrust] = Field(
+        default_factory=dict,
+        max_length=64,
+        description="sensor name -> its trust (spawn, spawn_classes, existence, "
+        "hit_probability, detection_probability, min_score, r, fov_deg, min_range_m, "
+        "max_range_m, verify); the first is the vehicle's reference; empty: no fusion",
+    )
+    vehicles: list[Annotated[str, Field(pattern=NAME_PATTERN)]] = Field(
+        default_factory=list, description="vehicles that fuse (empty: every vehicle)"
+    )
+    per_sensor_output: bool = Field(
+        default=False,
+        description="also track each fused sensor on its own and publish on its tracks key "
+        "(one more tracker step per frame)",
+    )
+    vehicle_frame_id: Annotated[str, Field(min_length=1, max_length=128)] = Field(
+        default="base_link",
+        description="frame_id of a vehicle's tracks when its frames carry extrinsics",
+    )
+
+    @field_validator("sensors")
+    @classmethod
+    def _sensor_names(cls, v: dict[str, SensorTrust]) -> dict[str, SensorTrust]:
+        for name in v:
+            if not re.fullmatch(NAME_PATTERN, name):
+                raise ValueError(f"sensor name {name!r} must match {NAME_PATTERN}")
+        return v
+
+    def config(self) -> FusionConfig | None:
+        """The core's fusion configuration (None: no fusion)."""
+        if not self.sensors:
+            return None
+        own = {"vehicles", "per_sensor_output", "vehicle_frame_id"}
+        return FusionConfig.model_validate(self.model_dump(exclude=own))
+
+
 _PREFIX = r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}(/[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}){0,7}$"
 
 
@@ -328,6 +371,10 @@ class ServiceSettings(BaseSettings):
     world_frame_id: Annotated[str, Field(min_length=1)] = Field(
         default="world", description="frame_id of tracks when detections carry a pose"
     )
+    fusion: FusionSettings = Field(
+        default_factory=FusionSettings,
+        description="vehicle fusion: which sensors feed one tracker per vehicle",
+    )
     tracks_schema_version: Annotated[int, Field(ge=1, le=TRACK_SCHEMA_VERSION)] = Field(
         default=TRACK_SCHEMA_VERSION,
         description="TrackFrame version published: 1 until every reader decodes 2 "
@@ -386,6 +433,16 @@ class ServiceSettings(BaseSettings):
         for name in self.ignore_classes:
             if name in config.classes:
                 raise ValueError(f"ignore_classes: {name!r} is a tracked class of this preset")
+        for sensor, trust in self.fusion.sensors.items():
+            named = set(trust.spawn_classes or ())
+            if isinstance(trust.min_score, dict):
+                named |= set(trust.min_score)
+            unknown = sorted(named - set(config.classes))
+            if unknown:
+                raise ValueError(
+                    f"fusion.sensors.{sensor}: unknown class {unknown[0]!r}; known: "
+                    f"{', '.join(config.classes)}"
+                )
         self._tracker_config = config
         return self
 

@@ -37,9 +37,11 @@ class Subscriptions:
         handler: Callable[[], Any],
         on_miss: Callable[[ext.Miss], None],
         history_frames: int,
+        stream_of: Callable[[str, str], str] = lambda v, s: f"{v}/{s}",
     ) -> None:
         self.session, self.keys, self.membership = session, keys, membership
         self._handler, self._on_miss, self._history = handler, on_miss, history_frames
+        self._stream_of = stream_of  # a fused sensor's role is its vehicle's
         self._tokens: dict[str, set[str]] = {}  # vehicle/sensor -> its publishers' tokens
         self._subs: dict[str, tuple[Any, Any]] = {}  # vehicle/sensor -> (listener, sub)
         self._lock = threading.Lock()
@@ -88,7 +90,11 @@ class Subscriptions:
     def _wanted(self) -> set[str]:
         with self._lock:
             published = list(self._tokens)
-        return {s for s in published if self.membership.role(s) is not Role.NONE}
+        return {
+            s
+            for s in published
+            if self.membership.role(self._stream_of(*s.split("/"))) is not Role.NONE
+        }
 
     def _run(self) -> None:
         while not self._stop.is_set():

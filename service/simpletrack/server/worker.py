@@ -15,9 +15,12 @@ from dataclasses import dataclass, field, replace
 
 import zenoh
 
+from simpletrack.core.config import TrackerConfig
+from simpletrack.core.fusion_config import FusionConfig
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.custody import Custody, Shared, Takeover
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
+from simpletrack.server.fused import FusedFrames
 from simpletrack.server.group import Role
 from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue, stamp_of
 from simpletrack.server.logs import get_logger
@@ -37,6 +40,13 @@ from simpletrack.server.sensors import (
 )
 from simpletrack.server.settings import ServiceSettings
 from simpletrack.server.snapshots import SnapshotWriter
+from simpletrack.server.streams import Streams, is_vehicle_stream
+from simpletrack.server.vehicles import (
+    VehicleState,
+    fusion_digest,
+    new_vehicle,
+    vehicle_from_snapshot,
+)
 from simpletrack.wire.codec import (
     DecodedDetections,
     DecodeLimits,
@@ -46,7 +56,7 @@ from simpletrack.wire.codec import (
 )
 from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
-from simpletrack.wire.keys import Keys
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
 from simpletrack.wire.reasons import ErrorReason
 
@@ -73,6 +83,23 @@ class Context:
     shared: Shared
     limits: DecodeLimits = field(default_factory=DecodeLimits)
     start_thresholds: StartThresholds | None = None  # None: no check of scores against them
+    streams: Streams | None = None  # None: no sensor is fused
+    tracker_config: TrackerConfig | None = None
+    fusion: FusionConfig | None = None
+    per_sensor_output: bool = False  # fused sensors also tracked on their own keys
+    vehicle_frame_id: str = "base_link"
+
+    @property
+    def vehicle_digest(self) -> str:
+        if self.fusion is None:
+            return ""
+        return fusion_digest(self.tracker_config_digest, self.fusion)
+
+    def stream(self, vehicle: str, sensor: str) -> str:
+        """The stream key (server/streams.py) of a sensor's frames now."""
+        if self.streams is None:
+            return f"{vehicle}/{sensor}"
+        return self.streams.stream(vehicle, sensor)
 
     @property
     def congestion(self) -> zenoh.CongestionControl:
@@ -92,10 +119,15 @@ class Worker(threading.Thread):
             writer=ctx.writer,
             state_dir=s.state_dir,
             reclaim_after_s=s.reset_gap_s,
+            new_vehicle=self._new_vehicle if ctx.fusion is not None else None,
+            vehicle_of=self._vehicle_of if ctx.fusion is not None else None,
+            vehicle_digest=ctx.vehicle_digest,
         )
+        self.fused = FusedFrames(self)
         self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance)
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
         self.custody = Custody(ctx.shared, self.sensors, self.outbox, s.standby_frames)
+        self.custody.before_release = self._before_release
         self.drain_deadline: float | None = None
         self.stopped = threading.Event()
         # Held while an item is handled: a member asking for a sensor takes it to release
@@ -114,10 +146,39 @@ class Worker(threading.Thread):
         self._next_checkpoint = time.monotonic() + s.checkpoint_interval_s
         self._next_housekeeping = time.monotonic() + HOUSEKEEPING_S
 
+    def _new_vehicle(self, vehicle: str, id_floor: int) -> VehicleState:
+        ctx = self.ctx
+        assert ctx.fusion is not None and ctx.tracker_config is not None
+        f = ctx.fusion
+        return new_vehicle(
+            vehicle, ctx.tracker_config, f, ctx.vehicle_digest, f.window_s, f.silent_after_s,
+            id_floor,
+        )  # fmt: skip
+
+    def _vehicle_of(self, snap: SensorSnapshot) -> VehicleState:
+        ctx = self.ctx
+        assert ctx.fusion is not None and ctx.tracker_config is not None
+        return vehicle_from_snapshot(
+            snap, ctx.tracker_config, ctx.fusion, ctx.vehicle_digest, ctx.new_tracker
+        )
+
+    def _before_release(self, key: str) -> None:
+        state = self.sensors.get(key)
+        if isinstance(state, VehicleState):
+            self.fused.release(state, flush=True)
+
     # ------------------------------------------------------------------ the loop
+    def _wait_s(self) -> float:
+        """How long the loop may wait for an item: until a fused vehicle's next frame is
+        due (core/reorder.py), or housekeeping."""
+        due = self.fused.due()
+        if due is None:
+            return HOUSEKEEPING_S
+        return min(HOUSEKEEPING_S, max(0.0, due - time.monotonic()) + 0.001)
+
     def run(self) -> None:
         while True:
-            item = self.queue.get(timeout=HOUSEKEEPING_S)
+            item = self.queue.get(timeout=self._wait_s())
             if item is None and self.queue.closed:
                 break
             try:
@@ -136,11 +197,14 @@ class Worker(threading.Thread):
                         self._announce(item)
                     elif item is not None:
                         item()
+                    self.fused.release_due()
                     if time.monotonic() >= self._next_housekeeping:
                         self._housekeeping()
             except Exception:  # never let one frame kill the thread of many sensors
                 log.error("worker_error", exc=True, worker=self.index)
         self._settle_pending()
+        with self.lock:
+            self.fused.flush_all()  # frames waiting in a vehicle's window: applied, published
         self.sensors.snapshot_dirty()
         # Every sensor's exact state to the member that takes it when this one leaves.
         self.custody.send_checkpoints(final=True)
@@ -178,16 +242,18 @@ class Worker(threading.Thread):
 
     # ------------------------------------------------------------------ one frame
     def _process(self, item: Inbound) -> None:
-        """Track the frames of the sensors this member owns (taking a sensor over first
-        when it does not hold it yet); keep those it stands by for; ignore the others."""
+        """Track the frames of the streams this member owns (taking a stream over first when
+        it does not hold it yet); keep those it stands by for; ignore the others. A fused
+        sensor's frames are its vehicle's stream's (server/streams.py)."""
         names = self.ctx.keys.sensor_of(item.key)
         if names is not None and NAME_RE.fullmatch(names[0]) and NAME_RE.fullmatch(names[1]):
             vehicle, sensor = names
-            key = f"{vehicle}/{sensor}"
+            key = self.ctx.stream(vehicle, sensor)
+            holder = key.split("/")[1]
             role = self.custody.role(key)
             if role is not Role.OWNER:
                 if self.sensors.get(key) is not None:
-                    self.custody.release(vehicle, sensor, self.ctx.shared.membership.owner(key))
+                    self.custody.release(vehicle, holder, self.ctx.shared.membership.owner(key))
                 if role is Role.STANDBY:
                     self.custody.standby.keep(key, item)
                 else:
@@ -199,9 +265,12 @@ class Worker(threading.Thread):
             if key not in self.custody.settled and self.sensors.get(key) is None:
                 self._pending[key] = deque([item])
                 if self.custody.needs_asking():
-                    self._ask(vehicle, sensor)
+                    self._ask(vehicle, holder)
                 else:
-                    self._answered(vehicle, sensor, [])
+                    self._answered(vehicle, holder, [])
+                return
+            if is_vehicle_stream(key):
+                self.fused.track(item, vehicle, sensor, replayed=key in self._limits)
                 return
             if key in self._limits and self._after_takeover(key, item):
                 return
@@ -255,22 +324,36 @@ class Worker(threading.Thread):
             ((stamp_of(f), f) for f in [*t.replay, *self._pending.pop(key, ())]),
             key=lambda sf: sf[0] or 0,
         )
-        frames, stamps = [], set()
+        frames, seen = [], set()
         for stamp, f in stamped:
-            if stamp is None or stamp not in stamps:
-                stamps.add(stamp)
+            if stamp is None or (f.key, stamp) not in seen:
+                seen.add((f.key, stamp))
                 frames.append(f)
+        if t.replay:
+            self.ctx.metrics.replayed.inc(len(t.replay))
+        if is_vehicle_stream(key):
+            self._replay_vehicle(t, frames)
+            return
         self._limits[key] = (t.covered_stamp_ns, t.published_stamp_ns)
         for f in frames:
             if not (key in self._limits and self._after_takeover(key, f)):
                 self._track(f)
-        top = max((st for st in stamps if st is not None), default=None)
+        top = max((st for _, st in seen if st is not None), default=None)
         if top is not None:
             # A frame both cached and still on its way is in the state now: skip it then.
             covered, published = self._limits.get(key, (None, t.published_stamp_ns))
             self._limits[key] = (top if covered is None else max(covered, top), published)
-        if t.replay:
-            self.ctx.metrics.replayed.inc(len(t.replay))
+
+    def _replay_vehicle(self, t: Takeover, frames: list[Inbound]) -> None:
+        """A fused vehicle's frames after the state taken over, through its reorder buffer;
+        messages planners already have (by the vehicle's message seq) are not sent again."""
+        state = self.sensors.get(f"{t.vehicle}/{VEHICLE_STREAM}")
+        if isinstance(state, VehicleState):
+            state.published_seq = t.published_seq
+        for f in frames:
+            names = self.ctx.keys.sensor_of(f.key)
+            if names is not None:
+                self.fused.track(f, names[0], names[1], replayed=True)
 
     def _after_takeover(self, key: str, item: Inbound) -> bool:
         """A frame the state taken over already holds is skipped; one planners already have
@@ -292,6 +375,12 @@ class Worker(threading.Thread):
         return False
 
     def _announce_missed(self, vehicle: str, sensor: str, n: int) -> None:
+        state = self.sensors.get(f"{vehicle}/{sensor}")
+        if isinstance(state, VehicleState):  # told on each sensor's own errors key
+            for name, k in state.missed_by_sensor.items():
+                if k:
+                    self._announce_missed(vehicle, name, k)
+            return
         self.ctx.metrics.count_missed(vehicle, n)
         log.warning("frames_missed", vehicle=vehicle, sensor=sensor, missed=n, at="takeover")
         err = missed_notice(
@@ -313,7 +402,7 @@ class Worker(threading.Thread):
             m.count_error(ErrorReason.INVALID_VALUE, "")
             log.warning("frame_rejected", key=item.key, reason="invalid_value", field="key")
             return
-        state = self.sensors.get(f"{vehicle}/{sensor}")
+        state = self.sensors.sensor(f"{vehicle}/{sensor}")
 
         decoded = decode_detection_frame(item.payload, ctx.limits, ctx.class_codes)
         t1 = time.perf_counter()
@@ -333,10 +422,10 @@ class Worker(threading.Thread):
         flagged = not self._quiet and self._plausible(vehicle, sensor, seq, decoded, item)
 
         arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
-        bridged = False
+        fresh = state is None
         if state is None:
-            state = self.sensors.add(vehicle, sensor, seq)
-            if state is None:
+            added = self.sensors.add(vehicle, sensor, seq)
+            if not isinstance(added, SensorState):
                 detail = (
                     f"already tracking max_sensors={ctx.budget.limit} sensors, none of this "
                     f"worker's silent for over reset_gap_s"
@@ -344,7 +433,47 @@ class Worker(threading.Thread):
                 r = Rejection(ErrorReason.TOO_MANY_SENSORS, None, detail, seq, stamp_ns)
                 self._refuse(item, vehicle, sensor, None, r)
                 return
-        else:
+            state = added
+        self._step_sensor(item, decoded, state, arrival, flagged, fresh, t1)
+
+    def _per_sensor(
+        self,
+        vehicle_state: VehicleState,
+        sensor: str,
+        item: Inbound,
+        decoded: DecodedDetections,
+        arrival: Arrival,
+    ) -> None:
+        """A fused sensor's own tracks too (``fusion.per_sensor_output``): its tracker lives
+        in its vehicle's stream and goes wherever the vehicle goes."""
+        vehicle = vehicle_state.vehicle
+        state = vehicle_state.per_sensor.get(sensor)
+        fresh = state is None
+        if state is None:
+            floor = self.sensors.retired.pop(f"{vehicle}/{sensor}", 0)
+            state = vehicle_state.per_sensor[sensor] = SensorState(
+                vehicle, sensor, self.ctx.new_tracker(), id_base=floor
+            )
+        self._step_sensor(item, decoded, state, arrival, False, fresh, time.perf_counter())
+
+    def _step_sensor(
+        self,
+        item: Inbound,
+        decoded: DecodedDetections,
+        state: SensorState,
+        arrival: Arrival,
+        flagged: bool,
+        fresh: bool,
+        t1: float,
+    ) -> None:
+        """A sensor's frame, decoded and checked, through its own tracker: ordering rules,
+        step, the finite guard, the id reservation, publish."""
+        ctx, m = self.ctx, self.ctx.metrics
+        vehicle, sensor = state.vehicle, state.sensor
+        frame = decoded.frame
+        seq, stamp_ns = frame.seq, frame.stamp_ns
+        bridged = False
+        if not fresh:
             verdict = check_order(state.last, arrival, self.rules, state.before)
             if verdict.order is Order.UNDO_LAST:
                 self._undo(state, arrival)
@@ -425,7 +554,7 @@ class Worker(threading.Thread):
                 seq=seq,
                 boxes=len(decoded.boxes),
                 tracks=len(wire),
-                ms=round((t3 - t0) * 1e3, 3),
+                ms=round((t3 - t1) * 1e3, 3),
             )
 
     def _plausible(
@@ -539,16 +668,19 @@ class Worker(threading.Thread):
         item: Inbound,
         vehicle: str,
         sensor: str,
-        state: SensorState | None,
+        state: SensorState | bool | None,
         r: Rejection,
         counted: bool = False,
     ) -> None:
+        """Count, publish and log a refusal; ``state``: the sensor's (or whether its stream
+        is held here: it then has a declared errors publisher)."""
         if self._quiet:
             return  # the member before this one announced it
         if not counted:
             self.ctx.metrics.count_error(r.reason, vehicle)
+        held = state if isinstance(state, bool) else state is not None
         try:
-            self.outbox.refuse(vehicle, sensor, r, item.received_ns, held=state is not None)
+            self.outbox.refuse(vehicle, sensor, r, item.received_ns, held=held)
         except ValueError as e:  # a notice that cannot be built: counted above, never a crash
             log.warning(
                 "frame_rejected", key=item.key, reason=r.reason.value, unpublished=str(e)[:200]
@@ -558,7 +690,7 @@ class Worker(threading.Thread):
         """One notice for frames the queue gave up (counted when they were given up)."""
         vehicle, sensor = self.ctx.keys.sensor_of(d.key) or ("", "")
         if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
-            held = self.sensors.get(f"{vehicle}/{sensor}") is not None
+            held = self.sensors.get(self.ctx.stream(vehicle, sensor)) is not None
             self.outbox.drops(vehicle, sensor, d.reason, d.seqs, d.stamp_ns, d.received_ns, held)
 
     def _drop(self, item: Inbound, reason: ErrorReason, counted: bool = False) -> None:
@@ -568,5 +700,5 @@ class Worker(threading.Thread):
             if not counted:
                 self.ctx.metrics.count_error(reason, "")
             return
-        state = self.sensors.get(f"{vehicle}/{sensor}")
-        self._refuse(item, vehicle, sensor, state, dropped(reason, item.payload), counted)
+        held = self.sensors.get(self.ctx.stream(vehicle, sensor)) is not None
+        self._refuse(item, vehicle, sensor, held, dropped(reason, item.payload), counted)
