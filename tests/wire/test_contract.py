@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import msgpack
@@ -80,6 +81,32 @@ def test_detection_round_trip_keeps_every_column_bit_exact() -> None:
     assert (d.frame.seq, d.frame.stamp_ns, d.frame.key_frame) == (7, 1_000_000_000, False)
 
 
+def test_extrinsic_makes_version_2_and_round_trips() -> None:
+    extrinsic = np.array(_ROT_VALID).reshape(4, 4)
+    data = payload(extrinsic=extrinsic, pose=np.eye(4), session_id=3)
+    obj = msgpack.unpackb(data, raw=False)
+    assert obj["schema_version"] == 2
+    assert list(obj)[-4:] == ["boxes", "pose", "session_id", "extrinsic"]
+    d = decode_detection_frame(data, class_codes=CODES)
+    assert isinstance(d, DecodedDetections), d
+    assert d.extrinsic is not None and np.array_equal(d.extrinsic, extrinsic)
+    assert d.frame.extrinsic == _ROT_VALID and d.frame.schema_version == 2
+
+
+def test_without_extrinsic_the_frame_stays_version_1_and_its_bytes() -> None:
+    data = payload()
+    assert msgpack.unpackb(data, raw=False)["schema_version"] == 1
+    assert payload(extrinsic=None) == data
+    d = decode_detection_frame(data, class_codes=CODES)
+    assert isinstance(d, DecodedDetections) and d.extrinsic is None
+
+
+def test_version_2_without_extrinsic_is_read() -> None:
+    d = decode_detection_frame(mutated("schema_version", 2), class_codes=CODES)
+    assert isinstance(d, DecodedDetections), d
+    assert d.frame.schema_version == 2 and d.extrinsic is None
+
+
 def test_empty_frame_is_valid() -> None:
     d = decode_detection_frame(payload(boxes=boxes(0)), class_codes=CODES)
     assert isinstance(d, DecodedDetections) and len(d.boxes) == 0
@@ -145,6 +172,10 @@ _LONG = np.array([[1, 1, 1], [101, 1, 1], [1, 1, 1]], np.float32).tobytes()
 _SPUN = np.array([0, 0, -2e4], np.float32).tobytes()
 _FAST = np.array([[0, 0], [0, 0], [0, 250]], np.float32).tobytes()
 _FAR = [1, 0, 0, 2e5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # rigid, 200 km away
+_EYE = [float(v) for v in np.eye(4).reshape(16)]
+_MIRROR = [1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1]  # orthonormal, a reflection
+_ROT_VALID = [0.0, -1.0, 0, 1.5, 1.0, 0.0, 0, 0, 0, 0, 1, 1.8, 0, 0, 0, 1]
+V2 = payload(extrinsic=_ROT_VALID)
 
 BAD_INPUTS: list[tuple[str, bytes, ErrorReason, str | None]] = [
     ("not msgpack", b"\xc1\xc1\xc1", ErrorReason.MALFORMED, "payload"),
@@ -152,7 +183,7 @@ BAD_INPUTS: list[tuple[str, bytes, ErrorReason, str | None]] = [
     ("trailing bytes", payload() + b"\x00", ErrorReason.MALFORMED, "payload"),
     ("not a map", msgpack.packb([1, 2, 3]), ErrorReason.MALFORMED, "payload"),
     ("no version", mutated("schema_version", DELETE), ErrorReason.MISSING_FIELD, "schema_version"),
-    ("version 2", mutated("schema_version", 2), ErrorReason.WRONG_VERSION, "schema_version"),
+    ("version 3", mutated("schema_version", 3), ErrorReason.WRONG_VERSION, "schema_version"),
     ("version str", mutated("schema_version", "1"), ErrorReason.WRONG_TYPE, "schema_version"),
     ("no seq", mutated("seq", DELETE), ErrorReason.MISSING_FIELD, "seq"),
     ("no boxes.score", mutated("boxes.score", DELETE), ErrorReason.MISSING_FIELD, "boxes.score"),
@@ -182,6 +213,39 @@ BAD_INPUTS: list[tuple[str, bytes, ErrorReason, str | None]] = [
         "boxes.velocity",
     ),
     ("pose 200 km away", mutated("pose", _FAR), ErrorReason.INVALID_VALUE, "pose"),
+    ("v1 with extrinsic", mutated("extrinsic", _EYE), ErrorReason.EXTRA_FIELD, "extrinsic"),
+    (
+        "extrinsic of 15",
+        mutated("extrinsic", [0.0] * 15, V2),
+        ErrorReason.INVALID_VALUE,
+        "extrinsic",
+    ),
+    (
+        "extrinsic NaN",
+        mutated("extrinsic", [math.nan] * 16, V2),
+        ErrorReason.NON_FINITE,
+        "extrinsic",
+    ),
+    ("extrinsic scaled", mutated("extrinsic", _ROT, V2), ErrorReason.INVALID_VALUE, "extrinsic"),
+    (
+        "extrinsic mirrored",
+        mutated("extrinsic", _MIRROR, V2),
+        ErrorReason.INVALID_VALUE,
+        "extrinsic",
+    ),
+    ("extrinsic far away", mutated("extrinsic", _FAR, V2), ErrorReason.INVALID_VALUE, "extrinsic"),
+    (
+        "pose before extrinsic",
+        mutated("pose", _ROT, payload(pose=np.eye(4), extrinsic=_ROT_VALID)),
+        ErrorReason.INVALID_VALUE,
+        "pose",
+    ),
+    (
+        "extrinsic before classes",
+        mutated("boxes.classes", ["Car", "Tram"], mutated("extrinsic", _ROT, V2)),
+        ErrorReason.INVALID_VALUE,
+        "extrinsic",
+    ),
     (
         "index past table",
         mutated("boxes.class_index", np.array([0, 1, 2], np.int32).tobytes()),
@@ -277,6 +341,8 @@ def test_golden_vector_decodes_to_its_json(path: Any) -> None:
             boxes=d.boxes,
             pose=d.pose,
             key_frame=d.frame.key_frame,
+            session_id=d.frame.session_id,
+            extrinsic=d.extrinsic,
         )
         assert again == data, "the encoder is canonical: same message, same bytes"
 

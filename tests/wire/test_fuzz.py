@@ -17,7 +17,9 @@ from simpletrack.wire import (
     Rejection,
     decode_detection_frame,
     decode_track_frame,
+    decode_vehicle_track_frame,
     encode_detection_frame,
+    generate,
 )
 
 CODES = {"Car": 0, "Pedestrian": 1}
@@ -59,6 +61,9 @@ def check(data: bytes) -> None:
     tracks = decode_track_frame(data, LIMITS)
     if isinstance(tracks, Rejection):
         assert tracks.reason is not ErrorReason.INTERNAL_ERROR, tracks.detail
+    fused = decode_vehicle_track_frame(data, LIMITS)
+    if isinstance(fused, Rejection):
+        assert fused.reason is not ErrorReason.INTERNAL_ERROR, fused.detail
 
 
 msgpack_values = st.recursive(
@@ -110,6 +115,39 @@ def test_one_field_replaced_or_removed(path: tuple[str, ...], value: Any) -> Non
         del target[path[-1]]
     else:
         target[path[-1]] = value
+    check(msgpack.packb(obj, use_bin_type=True))
+
+
+VEHICLE = generate._vehicle_tracks()
+VEHICLE_PATHS = _paths(msgpack.unpackb(VEHICLE, raw=False))
+
+
+@FUZZ
+@given(st.sampled_from(VEHICLE_PATHS), msgpack_values | st.just("__delete__"))
+def test_one_field_of_a_vehicle_frame_replaced_or_removed(
+    path: tuple[str, ...], value: Any
+) -> None:
+    obj = msgpack.unpackb(VEHICLE, raw=False)
+    target = obj
+    for p in path[:-1]:
+        target = target[p]
+    if value == "__delete__":
+        del target[path[-1]]
+    else:
+        target[path[-1]] = value
+    check(msgpack.packb(obj, use_bin_type=True))
+
+
+@FUZZ
+@given(st.integers(0, 4), st.integers(0, 4), st.lists(st.integers(-3, 2**62), max_size=24))
+def test_vehicle_columns_of_any_width(n: int, sensors: int, stamps: list[int]) -> None:
+    """Counts, sensor lists and stamp buffers that agree or not: width and value rules decide."""
+    obj = msgpack.unpackb(VEHICLE, raw=False)
+    obj["sensors"] = [f"s{i}" for i in range(sensors)] or obj["sensors"][:0]
+    obj["sensor_state"] = ["ok"] * sensors
+    obj["sensor"] = "s0"
+    obj["tracks"]["count"] = n
+    obj["tracks"]["sensor_stamp_ns"] = np.array(stamps, np.int64).tobytes()
     check(msgpack.packb(obj, use_bin_type=True))
 
 

@@ -61,23 +61,50 @@ _STATUS = {
     "active_tracks": 3,
     "idle_s": 0.25,
 }
+_FUSED = {
+    "sensor": "radar_rear",
+    "state": "clock",
+    "last_seq": 7,
+    "last_stamp_ns": 1_700_000_000_000_000_000,
+    "frames": 7,
+    "idle_s": 0.5,
+    "latency_s": None,
+    "clock_offset_s": 2.25,
+    "offset_m": [0.5, -0.25],
+    "flagged_frames": 3,
+    "detail": "stamps 2.3 s ahead",
+}
+_VEHICLE = {
+    "vehicle": "truck-07",
+    "seq": 1042,
+    "last_stamp_ns": None,
+    "active_tracks": 4,
+    "frames": 2000,
+    "late_frames": 2,
+    "reprocessed_frames": 15,
+    "sensors": [_FUSED, {**_FUSED, "sensor": "lidar_top", "state": "ok", "offset_m": None}],
+}
+_SERVICE_STATUS = {
+    "schema_version": 1,
+    "instance": "simpletrack-a",
+    "version": "0.1.0",
+    "preset": "kitti",
+    "classes": ["Car", "Pedestrian", "Cyclist"],
+    "config_digest": "ab" * 32,
+    "started_ns": 1_700_000_000_000_000_000,
+    "ready": True,
+    "queue_depth": 0,
+    "sensors": [_STATUS, {**_STATUS, "sensor": "radar", "idle_s": 3}],
+}
 BASES: dict[str, dict[str, Any]] = {
-    "DetectionFrame": _unpacked(generate.VECTORS["detection_full"][1]()),
+    "DetectionFrame": _unpacked(generate.VECTORS["detection_extrinsic"][1]()),
+    "DetectionFrameV1": _unpacked(generate.VECTORS["detection_full"][1]()),
     "TrackFrame": _unpacked(generate._tracks(2)),
     "TrackFrameV1": _unpacked(generate._tracks(1)),
+    "VehicleTrackFrame": _unpacked(generate._vehicle_tracks()),
     "FrameError": _unpacked(generate._error()),
-    "ServiceStatus": {
-        "schema_version": 1,
-        "instance": "simpletrack-a",
-        "version": "0.1.0",
-        "preset": "kitti",
-        "classes": ["Car", "Pedestrian", "Cyclist"],
-        "config_digest": "ab" * 32,
-        "started_ns": 1_700_000_000_000_000_000,
-        "ready": True,
-        "queue_depth": 0,
-        "sensors": [_STATUS, {**_STATUS, "sensor": "radar", "idle_s": 3}],
-    },
+    "ServiceStatusV1": _SERVICE_STATUS,
+    "ServiceStatus": {**_SERVICE_STATUS, "schema_version": 2, "vehicles": [_VEHICLE]},
     "SensorSnapshot": {
         "schema_version": 1,
         "vehicle": "truck-07",
@@ -92,10 +119,13 @@ BASES: dict[str, dict[str, Any]] = {
 }
 MODELS: dict[str, type[BaseModel]] = {
     "DetectionFrame": models.DetectionFrame,
+    "DetectionFrameV1": models.DetectionFrameV1,
     "TrackFrame": models.TrackFrame,
     "TrackFrameV1": models.TrackFrameV1,
+    "VehicleTrackFrame": models.VehicleTrackFrame,
     "FrameError": models.FrameError,
     "ServiceStatus": models.ServiceStatus,
+    "ServiceStatusV1": models.ServiceStatusV1,
     "SensorSnapshot": models.SensorSnapshot,
 }
 
@@ -161,6 +191,23 @@ EDGE_VALUES: list[Any] = [
     [{**_STATUS, "frames": -1}],
     [3],
     [True] * 16,
+    "@vehicle",
+    "@vehicle2",
+    "ok",
+    "clock",
+    b"ok",
+    ["ok"],
+    ["ok", "silent"],
+    ["ok", "tired"],
+    ["lidar_top", "lidar_top"],
+    ["a"] * 64,
+    ["a"] * 65,
+    [0.5, 1.5],
+    [0.5, None],
+    [_VEHICLE],
+    [{**_VEHICLE, "late_frames": -1}],
+    [_FUSED] * 65,
+    [{**_FUSED, "state": "fine"}],
 ]
 EDGES = st.sampled_from(EDGE_VALUES)
 VALUES = EDGES | msgpack_values | st.just("__delete__")

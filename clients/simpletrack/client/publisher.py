@@ -23,6 +23,10 @@ service recovers held frames only if it had heard from this publisher before the
 that first hears of it takes only its latest frame (the service's ``history_frames``).
 
 Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors`` reach ``on_error`` (called on a Zenoh thread: keep it short) and the ``errors()`` iterator.
+
+A sensor whose vehicle fuses its sensors gives its mounting, ``extrinsic`` (4x4
+sensor->vehicle): every frame then carries it (DetectionFrame version 2); a vehicle without
+poses must give it (docs/VEHICLES.md).
 """
 
 from __future__ import annotations
@@ -54,6 +58,8 @@ from simpletrack.wire import (
     decode_message,
     encode_detection_frame,
 )
+from simpletrack.wire.codec import rigid_transform, transform_list
+from simpletrack.wire.decoding import Reject
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.messages import NAME_PATTERN, SensorStatus, ServiceStatus
 
@@ -111,6 +117,21 @@ def check_name(kind: str, value: str) -> str:
     return value
 
 
+def check_extrinsic(extrinsic: npt.ArrayLike) -> list[float]:
+    """A 4x4 sensor->vehicle transform (or its 16 values, row-major) as the wire's 16 floats;
+    ValueError for anything the service would refuse (not 16 values, NaN, not rigid, a
+    translation beyond 1e5 m)."""
+    try:
+        values = transform_list(extrinsic)
+    except ValueError as e:
+        raise ValueError(f"extrinsic must be a 4x4 transform: {e}") from None
+    try:
+        rigid_transform(values, "extrinsic")
+    except Reject as r:
+        raise ValueError(f"extrinsic: {r.detail}") from None
+    return values
+
+
 def _is_core_boxes(obj: object) -> TypeIs[Boxes]:
     # Only a process that has loaded the core can hold core Boxes: a vehicle that never
     # imports it never pays for it here.
@@ -162,11 +183,14 @@ class DetectionPublisher:
         cache_frames: int = DEFAULT_CACHE_FRAMES,
         heartbeat_s: float = DEFAULT_HEARTBEAT_S,
         on_undelivered: Callable[[Undelivered], None] | None = None,
+        extrinsic: npt.ArrayLike | None = None,
     ) -> None:
         self.vehicle = check_name("vehicle", vehicle)
         self.sensor = check_name("sensor", sensor)
         self.classes = tuple(classes)
         self.frame_id = frame_id or sensor
+        # The sensor's mounting (sensor->vehicle), sent with every frame; None: not sent.
+        self.extrinsic = None if extrinsic is None else check_extrinsic(extrinsic)
         self.keys = Keys(prefix)
         self.next_seq = first_seq
         # 63 random bits: two runs of one sensor's publisher never share an id in practice.
@@ -233,9 +257,11 @@ class DetectionPublisher:
         pose: npt.ArrayLike | None = None,
         key_frame: bool = True,
         seq: int | None = None,
+        extrinsic: npt.ArrayLike | None = None,
     ) -> int:
         """Send one frame; returns its ``seq``. ``pose`` is the optional 4x4 sensor->world;
-        ``seq`` (default: one more than the last) may skip ahead, never go back. Core
+        ``seq`` (default: one more than the last) may skip ahead, never go back;
+        ``extrinsic`` (4x4 sensor->vehicle) replaces the publisher's for this frame. Core
         ``Boxes`` (codes index ``classes``) go through ``simpletrack.wire.convert``."""
         if isinstance(boxes, BoxArrays):
             arrays = boxes
@@ -246,7 +272,7 @@ class DetectionPublisher:
         else:
             arrays = box_list_to_arrays(boxes, self.classes)
         return self.publish_arrays(
-            arrays, stamp_ns=stamp_ns, pose=pose, key_frame=key_frame, seq=seq
+            arrays, stamp_ns=stamp_ns, pose=pose, key_frame=key_frame, seq=seq, extrinsic=extrinsic
         )
 
     def publish_arrays(
@@ -257,9 +283,11 @@ class DetectionPublisher:
         pose: npt.ArrayLike | None = None,
         key_frame: bool = True,
         seq: int | None = None,
+        extrinsic: npt.ArrayLike | None = None,
     ) -> int:
         if self._closed:
             raise RuntimeError("publisher is closed")
+        mounting = self.extrinsic if extrinsic is None else check_extrinsic(extrinsic)
         if seq is None:
             seq = self.next_seq
         elif seq < self.next_seq:
@@ -274,6 +302,7 @@ class DetectionPublisher:
             pose=pose,
             key_frame=key_frame,
             session_id=self.session_id,
+            extrinsic=mounting,
         )
         self._publisher.put(payload)
         self.next_seq = seq + 1

@@ -19,13 +19,21 @@ from simpletrack.wire.messages import (
     BoxColumns,
     DetectionFrame,
     FrameError,
+    FusedSensorStatus,
     SensorSnapshot,
     SensorStatus,
     ServiceStatus,
     TrackColumns,
     TrackFrame,
+    VehicleStatus,
+    VehicleTrackColumns,
+    VehicleTrackFrame,
 )
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason, WireTrackState
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason, SensorCondition, WireTrackState
+from simpletrack.wire.vehicle_tracks import (
+    decode_vehicle_track_frame,
+    encode_vehicle_track_frame,
+)
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -36,18 +44,25 @@ __all__ = [
     "DetectionFrame",
     "ErrorReason",
     "FrameError",
+    "FusedSensorStatus",
     "Rejection",
+    "SensorCondition",
     "SensorSnapshot",
     "SensorStatus",
     "ServiceStatus",
     "TrackArrays",
     "TrackColumns",
     "TrackFrame",
+    "VehicleStatus",
+    "VehicleTrackColumns",
+    "VehicleTrackFrame",
     "WireTrackState",
     "decode_detection_frame",
     "decode_message",
     "decode_track_frame",
+    "decode_vehicle_track_frame",
     "encode",
     "encode_detection_frame",
     "encode_track_frame",
+    "encode_vehicle_track_frame",
 ]

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar, cast
@@ -18,17 +19,34 @@ from simpletrack.wire.columns import (
     DETECTION_SPECS,
     TRACK_COLUMNS_OF,
     BoxArrays,
-    ColumnSpec,
     TrackArrays,
     to_column,
 )
-from simpletrack.wire.fields import Invalid, MapSpec
+from simpletrack.wire.decoding import (
+    DEFAULT_LIMITS,
+    Reject,
+    check_version,
+    internal_error,
+    plan,
+    read_columns,
+    rejection,
+    unpack,
+    validate,
+)
+from simpletrack.wire.decoding import (
+    DecodeLimits as DecodeLimits,
+)
+from simpletrack.wire.decoding import (
+    Rejection as Rejection,
+)
+from simpletrack.wire.fields import Invalid
 from simpletrack.wire.messages import (
     BOX_COLUMNS,
-    DETECTION_FRAME,
+    DETECTION_FRAMES,
     MESSAGE_TYPES,
     SPECS,
     TRACK_FRAMES,
+    VERSIONS,
     DetectionFrame,
     Message,
     TrackFrame,
@@ -36,6 +54,8 @@ from simpletrack.wire.messages import (
     to_map,
 )
 from simpletrack.wire.reasons import (
+    DETECTION_SCHEMA_VERSION,
+    DETECTION_SCHEMA_VERSIONS,
     SCHEMA_VERSION,
     TRACK_SCHEMA_VERSION,
     TRACK_SCHEMA_VERSIONS,
@@ -43,7 +63,6 @@ from simpletrack.wire.reasons import (
 )
 
 M = TypeVar("M")
-T = TypeVar("T")
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
@@ -62,36 +81,15 @@ MAX_SPEED_MPS = 200.0  # |vx|, |vy|
 
 
 @dataclass(frozen=True, slots=True)
-class DecodeLimits:
-    max_bytes: int = 8 << 20
-    max_boxes: int = 10_000
-
-
-@dataclass(frozen=True, slots=True)
-class Rejection:
-    """Why a payload was refused; ``seq``/``stamp_ns`` when they could still be read."""
-
-    reason: ErrorReason
-    field: str | None
-    detail: str
-    seq: int | None = None
-    stamp_ns: int | None = None
-
-
-@dataclass(frozen=True, slots=True)
 class DecodedDetections:
     frame: DetectionFrame
     boxes: BoxArrays
     pose: F64 | None
+    # Version 2: the sensor->vehicle transform (None when the frame has none).
+    extrinsic: F64 | None
     # Per box: the code of its class in the caller's table (``class_codes``), -1 for a
     # class the caller mapped to -1 (ignored). None when no table was given.
     codes: I32 | None
-
-
-class _Reject(Exception):
-    def __init__(self, reason: ErrorReason, field: str | None, detail: str) -> None:
-        super().__init__(detail)
-        self.reason, self.field, self.detail = reason, field, detail
 
 
 class _PydanticModel(Protocol):
@@ -119,104 +117,15 @@ def encode(message: Message | _PydanticModel) -> bytes:
 
 # --- decoding -----------------------------------------------------------------------------
 
-
-def _unpack(payload: bytes, limits: DecodeLimits) -> dict[str, Any]:
-    if len(payload) > limits.max_bytes:
-        raise _Reject(
-            ErrorReason.TOO_LARGE,
-            "payload",
-            f"{len(payload)} bytes exceeds the cap of {limits.max_bytes}",
-        )
-    try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
-    except (ValueError, TypeError, msgpack.UnpackException, RecursionError, OverflowError) as e:
-        # ExtraData, FormatError, StackError and bad UTF-8 are all ValueError subclasses.
-        raise _Reject(ErrorReason.MALFORMED, "payload", f"not msgpack: {e}"[:200]) from None
-    if not isinstance(obj, dict):
-        raise _Reject(ErrorReason.MALFORMED, "payload", f"expected a map, got {type(obj).__name__}")
-    return obj
-
-
-def _check_version(obj: dict[str, Any], accepted: tuple[int, ...] = (SCHEMA_VERSION,)) -> int:
-    version = obj.get("schema_version")
-    if "schema_version" not in obj:
-        raise _Reject(ErrorReason.MISSING_FIELD, "schema_version", "field required")
-    if type(version) is not int:
-        raise _Reject(ErrorReason.WRONG_TYPE, "schema_version", "must be an integer")
-    if version not in accepted:
-        speaks = ", ".join(map(str, accepted))
-        raise _Reject(
-            ErrorReason.WRONG_VERSION,
-            "schema_version",
-            f"version {version} not supported (this service speaks {speaks})",
-        )
-    return version
-
-
-def _validate(spec: MapSpec[T], obj: dict[str, Any]) -> T:
-    try:
-        return spec(obj)
-    except Invalid as e:
-        raise _Reject(e.reason, e.field, e.detail[:200]) from None
-
-
-@dataclass(frozen=True, slots=True)
-class _Column:
-    """A column spec with what decoding needs per frame worked out once."""
-
-    name: str
-    field: str  # dotted, for rejections
-    dtype: np.dtype[Any]
-    row_bytes: int
-    width: int
-    finite: bool
-
-
-def _plan(specs: tuple[ColumnSpec, ...], prefix: str) -> tuple[_Column, ...]:
-    return tuple(
-        _Column(s.name, f"{prefix}.{s.name}", np.dtype(s.dtype), s.row_bytes, s.width, s.finite)
-        for s in specs
-    )
-
-
-_DETECTION_PLAN = _plan(DETECTION_COLUMNS, "boxes")
-_TRACK_PLANS = {v: _plan(cols, "tracks") for v, cols in TRACK_COLUMNS_OF.items()}
-
-
-def _columns(
-    model: Any, plan: tuple[_Column, ...], prefix: str, max_rows: int
-) -> dict[str, npt.NDArray[Any]]:
-    count = int(model.count)
-    if count > max_rows:
-        raise _Reject(
-            ErrorReason.TOO_LARGE, f"{prefix}.count", f"{count} rows exceeds the cap of {max_rows}"
-        )
-    out: dict[str, npt.NDArray[Any]] = {}
-    for c in plan:
-        buf = getattr(model, c.name)
-        if buf is None:
-            continue
-        if len(buf) != count * c.row_bytes:
-            raise _Reject(
-                ErrorReason.COLUMN_LENGTH,
-                c.field,
-                f"{len(buf)} bytes, expected count {count} x {c.row_bytes} bytes",
-            )
-        arr = np.frombuffer(buf, dtype=c.dtype)  # what view_column does, minus its lookups
-        if c.width > 1:
-            arr = arr.reshape(-1, c.width)
-        if c.finite and not np.isfinite(arr).all():
-            row = int(np.argwhere(~np.isfinite(arr))[0][0])
-            raise _Reject(ErrorReason.NON_FINITE, c.field, f"NaN or inf in row {row}")
-        out[c.name] = arr
-    return out
+_DETECTION_PLAN = plan(DETECTION_COLUMNS, "boxes")
+_TRACK_PLANS = {v: plan(cols, "tracks") for v, cols in TRACK_COLUMNS_OF.items()}
 
 
 def _bounded(arr: npt.NDArray[Any], bound: float, field: str, unit: str) -> None:
     # One reduction on the hot path; the offending row is looked for only on failure.
     if arr.size and float(np.abs(arr).max()) > bound:
         row = int(np.argwhere(np.abs(arr) > bound)[0][0])
-        raise _Reject(
+        raise Reject(
             ErrorReason.INVALID_VALUE, field, f"|value| over {bound:g} {unit} in row {row}"
         )
 
@@ -238,13 +147,13 @@ def _det3(p: list[float]) -> float:
     )
 
 
-def _pose(frame: DetectionFrame) -> F64 | None:
+def rigid_transform(p: list[float] | None, field: str) -> F64 | None:
+    """A pose or extrinsic as a 4x4: finite, rigid, its translation within bounds."""
     # Scalar checks on the 16 Python floats where numpy's per-call cost would dominate.
-    p = frame.pose
     if p is None:
         return None
     if not all(map(math.isfinite, p)):
-        raise _Reject(ErrorReason.NON_FINITE, "pose", "NaN or inf in the pose")
+        raise Reject(ErrorReason.NON_FINITE, field, f"NaN or inf in the {field}")
     pose = np.array(p, np.float64).reshape(4, 4)
     rot = pose[:3, :3]
     rigid = (
@@ -253,9 +162,9 @@ def _pose(frame: DetectionFrame) -> F64 | None:
         and _det3(p) > 0
     )
     if not rigid:
-        raise _Reject(ErrorReason.INVALID_VALUE, "pose", "not a rigid transform (row-major 4x4)")
+        raise Reject(ErrorReason.INVALID_VALUE, field, "not a rigid transform (row-major 4x4)")
     if max(abs(p[3]), abs(p[7]), abs(p[11])) > MAX_COORDINATE_M:
-        raise _Reject(ErrorReason.INVALID_VALUE, "pose", f"translation over {MAX_COORDINATE_M:g} m")
+        raise Reject(ErrorReason.INVALID_VALUE, field, f"translation over {MAX_COORDINATE_M:g} m")
     return pose
 
 
@@ -267,7 +176,7 @@ def _class_codes(boxes: BoxArrays, class_codes: Mapping[str, int]) -> I32:
     unknown = codes == -2
     if unknown.any():
         idx = int(boxes.class_index[int(np.argmax(unknown))])
-        raise _Reject(
+        raise Reject(
             ErrorReason.UNKNOWN_CLASS,
             f"boxes.classes.{idx}",
             f"class {boxes.classes[idx]!r} is not tracked here; known: {', '.join(class_codes)}"[
@@ -277,87 +186,90 @@ def _class_codes(boxes: BoxArrays, class_codes: Mapping[str, int]) -> I32:
     return codes
 
 
-def _peek_int(obj: Mapping[str, Any], key: str) -> int | None:
-    v = obj.get(key)
-    return v if type(v) is int and 0 <= v < 2**63 else None
-
-
 def decode_detection_frame(
     payload: bytes,
-    limits: DecodeLimits = DecodeLimits(),
+    limits: DecodeLimits = DEFAULT_LIMITS,
     class_codes: Mapping[str, int] | None = None,
 ) -> DecodedDetections | Rejection:
-    """Decode and validate a ``DetectionFrame``. ``class_codes`` maps class names to the
-    caller's codes (-1 = known but ignored); a box of any other class is ``unknown_class``."""
+    """Decode and validate a ``DetectionFrame`` (version 1 or 2). ``class_codes`` maps class
+    names to the caller's codes (-1 = known but ignored); a box of any other class is
+    ``unknown_class``."""
     obj: dict[str, Any] = {}
     try:
-        obj = _unpack(payload, limits)
-        _check_version(obj)
-        frame = _validate(DETECTION_FRAME, obj)
-        cols = _columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes)
+        obj = unpack(payload, limits)
+        version = check_version(obj, DETECTION_SCHEMA_VERSIONS)
+        frame = validate(DETECTION_FRAMES[version], obj)
+        cols = read_columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes)
         boxes = BoxArrays(classes=tuple(frame.boxes.classes), **cols)
         n_classes = len(boxes.classes)
         if len(boxes) and (
             int(boxes.class_index.min()) < 0 or int(boxes.class_index.max()) >= n_classes
         ):
-            raise _Reject(
+            raise Reject(
                 ErrorReason.INVALID_VALUE,
                 "boxes.class_index",
                 f"index outside the class table of {n_classes} entries",
             )
         if len(boxes) and not (boxes.size > 0).all():
             row = int(np.argwhere(~(boxes.size > 0))[0][0])
-            raise _Reject(ErrorReason.NON_POSITIVE_SIZE, "boxes.size", f"size <= 0 in row {row}")
+            raise Reject(ErrorReason.NON_POSITIVE_SIZE, "boxes.size", f"size <= 0 in row {row}")
         _check_bounds(boxes)
-        pose = _pose(frame)
+        pose = rigid_transform(frame.pose, "pose")
+        extrinsic = rigid_transform(frame.extrinsic, "extrinsic")
         codes = None if class_codes is None else _class_codes(boxes, class_codes)
-        return DecodedDetections(frame=frame, boxes=boxes, pose=pose, codes=codes)
-    except _Reject as r:
-        return Rejection(
-            r.reason, r.field, r.detail, _peek_int(obj, "seq"), _peek_int(obj, "stamp_ns")
+        return DecodedDetections(
+            frame=frame, boxes=boxes, pose=pose, extrinsic=extrinsic, codes=codes
         )
+    except Reject as r:
+        return rejection(r, obj)
     except Exception as e:  # a bug in this module; the fuzz test asserts it never happens
-        return Rejection(ErrorReason.INTERNAL_ERROR, None, f"{type(e).__name__}: {e}"[:300])
+        return internal_error(e)
 
 
 def decode_track_frame(
     payload: bytes,
-    limits: DecodeLimits = DecodeLimits(),
+    limits: DecodeLimits = DEFAULT_LIMITS,
 ) -> tuple[TrackFrame, TrackArrays] | Rejection:
     obj: dict[str, Any] = {}
     try:
-        obj = _unpack(payload, limits)
-        version = _check_version(obj, TRACK_SCHEMA_VERSIONS)
-        frame = _validate(TRACK_FRAMES[version], obj)
-        cols = _columns(frame.tracks, _TRACK_PLANS[version], "tracks", limits.max_boxes)
+        obj = unpack(payload, limits)
+        version = check_version(obj, TRACK_SCHEMA_VERSIONS)
+        frame = validate(TRACK_FRAMES[version], obj)
+        cols = read_columns(frame.tracks, _TRACK_PLANS[version], "tracks", limits.max_boxes)
         return frame, TrackArrays(classes=tuple(frame.tracks.classes), **cols)
-    except _Reject as r:
-        return Rejection(
-            r.reason, r.field, r.detail, _peek_int(obj, "seq"), _peek_int(obj, "stamp_ns")
-        )
+    except Reject as r:
+        return rejection(r, obj)
     except Exception as e:
-        return Rejection(ErrorReason.INTERNAL_ERROR, None, f"{type(e).__name__}: {e}"[:300])
+        return internal_error(e)
 
 
 def decode_message(
     payload: bytes,
     model: type[M],
-    limits: DecodeLimits = DecodeLimits(),
+    limits: DecodeLimits = DEFAULT_LIMITS,
 ) -> M | Rejection:
     """Decode any other message (FrameError, ServiceStatus, SensorSnapshot). ``model`` is a
     message class of ``simpletrack.wire``, or its pydantic twin of ``simpletrack.wire.models``
-    (the server's): the same checks decide, then the twin is built from the map."""
+    (the server's): the same checks decide, then the twin is built from the map. A message
+    read in several versions is checked against its version's table; asked for as a pydantic
+    model, an earlier version comes back as that version's model (``ServiceStatusV1``)."""
     try:
-        obj = _unpack(payload, limits)
-        _check_version(obj)
-        message = _validate(SPECS[model.__name__], obj)
+        obj = unpack(payload, limits)
+        versions = VERSIONS.get(model.__name__)
+        if versions is None:
+            check_version(obj)
+            spec = SPECS[model.__name__]
+        else:
+            spec = versions[check_version(obj, tuple(versions))]
+        message = validate(spec, obj)
         if isinstance(message, model):
             return message
-        return cast(M, cast(Any, model).model_validate(obj))
-    except _Reject as r:
+        twin: Any = getattr(sys.modules[model.__module__], spec.name, model)
+        return cast(M, twin.model_validate(obj))
+    except Reject as r:
         return Rejection(r.reason, r.field, r.detail)
     except Exception as e:
-        return Rejection(ErrorReason.INTERNAL_ERROR, None, f"{type(e).__name__}: {e}"[:300])
+        return internal_error(e)
 
 
 # --- fast encoders for the hot path (no pydantic round trip) --------------------------------
@@ -374,10 +286,12 @@ def encode_detection_frame(
     pose: npt.ArrayLike | None = None,
     key_frame: bool = True,
     session_id: int | None = None,
+    extrinsic: npt.ArrayLike | None = None,
 ) -> bytes:
     """A ``DetectionFrame`` from numpy columns (what a vehicle-side publisher calls).
     ValueError for a column of the wrong shape or a bad class table. ``session_id`` None
-    leaves the field out (the frame a publisher of before the field would send)."""
+    leaves the field out (the frame a publisher of before the field would send). Version 1
+    without ``extrinsic`` (the bytes of before version 2), version 2 with it."""
     s = DETECTION_SPECS
     ci = to_column(boxes.class_index, s["class_index"])
     cols: dict[str, Any] = {
@@ -396,7 +310,7 @@ def encode_detection_frame(
     except Invalid as e:
         raise ValueError(f"boxes.{e.field}: {e.detail}") from None
     msg: dict[str, Any] = {
-        "schema_version": SCHEMA_VERSION,
+        "schema_version": SCHEMA_VERSION if extrinsic is None else DETECTION_SCHEMA_VERSION,
         "vehicle": vehicle,
         "sensor": sensor,
         "seq": int(seq),
@@ -406,10 +320,17 @@ def encode_detection_frame(
         "boxes": cols,
     }
     if pose is not None:
-        msg["pose"] = [float(v) for v in np.asarray(pose, dtype=np.float64).reshape(16)]
+        msg["pose"] = transform_list(pose)
     if session_id is not None:
         msg["session_id"] = int(session_id)
+    if extrinsic is not None:
+        msg["extrinsic"] = transform_list(extrinsic)
     return pack(msg)
+
+
+def transform_list(transform: npt.ArrayLike) -> list[float]:
+    """A 4x4 (or 16 values) as the 16 floats of the wire, row-major."""
+    return [float(v) for v in np.asarray(transform, dtype=np.float64).reshape(16)]
 
 
 def encode_track_frame(

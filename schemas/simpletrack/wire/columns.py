@@ -25,6 +25,9 @@ class ColumnSpec:
     width: int  # values per row (1 = a plain vector)
     optional: bool = False
     finite: bool = False  # NaN/inf are rejected
+    # One value per fused sensor in each row: the row's width is the message's number of
+    # sensors, not ``width`` (which is then 1, so ``row_bytes`` is one value's).
+    per_sensor: bool = False
 
     @property
     def row_bytes(self) -> int:
@@ -32,6 +35,8 @@ class ColumnSpec:
 
     def json_schema_extra(self) -> dict[str, Any]:  # JSON values, for the pydantic models
         shape: list[str | int] = ["count"] if self.width == 1 else ["count", self.width]
+        if self.per_sensor:
+            shape = ["count", "sensors"]
         # contentEncoding/contentMediaType: JSON Schema's own words for binary in a string
         # (base64 when a message is shown as JSON); x-dtype/x-shape: what the bytes hold.
         return {
@@ -86,9 +91,17 @@ TRACK_COLUMNS: tuple[ColumnSpec, ...] = TRACK_COLUMNS_V1 + TRACK_COLUMNS_V2_ADDE
 # The columns of each TrackFrame schema version.
 TRACK_COLUMNS_OF: dict[int, tuple[ColumnSpec, ...]] = {1: TRACK_COLUMNS_V1, 2: TRACK_COLUMNS}
 COVARIANCE_UPPER = np.triu_indices(6)  # (row, col) of each of the 21 values, in order
+# A vehicle's fused tracks (VehicleTrackFrame): a TrackFrame version 2's columns and two more.
+# sensor_stamp_ns is (count, len(sensors)): -1 where that sensor never updated the track.
+VEHICLE_TRACK_COLUMNS: tuple[ColumnSpec, ...] = (
+    *TRACK_COLUMNS,
+    ColumnSpec("existence", "<f8", 1, finite=True),
+    ColumnSpec("sensor_stamp_ns", "<i8", 1, per_sensor=True),
+)
 
 DETECTION_SPECS = {c.name: c for c in DETECTION_COLUMNS}
 TRACK_SPECS = {c.name: c for c in TRACK_COLUMNS}
+VEHICLE_TRACK_SPECS = {c.name: c for c in VEHICLE_TRACK_COLUMNS}
 
 
 def covariance_to_upper(cov: npt.ArrayLike) -> F32:
@@ -106,9 +119,16 @@ def covariance_from_upper(upper: npt.ArrayLike) -> F64:
     return out
 
 
-def to_column(values: npt.ArrayLike, spec: ColumnSpec) -> bytes:
-    """Pack an array as the column's little-endian buffer (shape-checked against the width)."""
+def to_column(values: npt.ArrayLike, spec: ColumnSpec, sensors: int | None = None) -> bytes:
+    """Pack an array as the column's little-endian buffer (shape-checked against the width;
+    a per-sensor column against ``sensors``, which it needs)."""
     arr = np.ascontiguousarray(values, dtype=np.dtype(spec.dtype))
+    if spec.per_sensor:
+        if sensors is None:
+            raise ValueError(f"column {spec.name} needs the number of sensors")
+        if arr.ndim != 2 or arr.shape[1] != sensors:
+            raise ValueError(f"column {spec.name} must have shape (N, {sensors}), got {arr.shape}")
+        return arr.tobytes()
     if (spec.width == 1 and arr.ndim != 1) or (
         spec.width > 1 and (arr.ndim != 2 or arr.shape[1] != spec.width)
     ):
@@ -144,9 +164,10 @@ class BoxArrays:
 
 @dataclass(frozen=True, slots=True)
 class TrackArrays:
-    """Decoded tracks. ``state`` holds ``WireTrackState`` codes. The last three come with
-    TrackFrame version 2 (None from a version-1 frame; ``covariance`` also None when the
-    service's motion model keeps none)."""
+    """Decoded tracks. ``state`` holds ``WireTrackState`` codes. ``covariance``, ``age_s``
+    and ``time_since_update_s`` come with TrackFrame version 2 (None from a version-1 frame;
+    ``covariance`` also None when the service's motion model keeps none); ``existence`` and
+    ``sensor_stamp_ns`` with a vehicle's fused tracks (VehicleTrackFrame) only."""
 
     classes: tuple[str, ...]
     id: I64
@@ -163,9 +184,9 @@ class TrackArrays:
     covariance: F32 | None = None  # (N, 21) upper triangle of [x, y, z, vx, vy, vz]
     age_s: F64 | None = None  # (N,) seconds from birth to this frame's stamp
     time_since_update_s: F64 | None = None  # (N,) seconds from the last update
-    # A VehicleTrackFrame's (None in a sensor's TrackFrame): the existence probability, and
-    # (N, S) the stamp of each of the vehicle's sensors' last update (-1: never).
-    existence: F64 | None = None
+    existence: F64 | None = None  # (N,) probability in [0, 1] that the track is an object
+    # (N, S), S = len(VehicleTrackFrame.sensors): the stamp_ns of sensor j's last update of
+    # track i, -1 when that sensor never updated it.
     sensor_stamp_ns: I64 | None = None
 
     def __len__(self) -> int:

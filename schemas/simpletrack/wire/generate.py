@@ -14,7 +14,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -32,14 +32,16 @@ from simpletrack.wire.codec import (
 from simpletrack.wire.columns import (
     DETECTION_COLUMNS,
     TRACK_COLUMNS_OF,
+    VEHICLE_TRACK_COLUMNS,
     BoxArrays,
     TrackArrays,
     covariance_to_upper,
 )
 from simpletrack.wire.messages import FrameError as DecodedFrameError
 from simpletrack.wire.messages import to_map
-from simpletrack.wire.models import MESSAGES, FrameError, TrackFrame
-from simpletrack.wire.reasons import SCHEMA_VERSION, TRACK_SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.models import MESSAGES, FrameError
+from simpletrack.wire.reasons import ErrorReason, SensorCondition
+from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame, encode_vehicle_track_frame
 
 ROOT = Path(__file__).resolve().parents[2]  # schemas/
 JSON_DIR = ROOT / "json"
@@ -50,7 +52,8 @@ def json_schemas() -> dict[str, str]:
     out = {}
     for model in MESSAGES:
         schema = model.model_json_schema()
-        version = TRACK_SCHEMA_VERSION if model is TrackFrame else SCHEMA_VERSION
+        # Each model is one version of its message: its schema_version's one Literal value.
+        (version,) = get_args(model.model_fields["schema_version"].annotation)
         schema["$id"] = f"simpletrack/v{version}/{model.__name__}"
         out[f"{model.__name__}.schema.json"] = json.dumps(schema, indent=2, sort_keys=True) + "\n"
     return out
@@ -78,6 +81,9 @@ def _boxes(n: int, velocity: bool = False) -> BoxArrays:
 
 
 _POSE = [0.0, -1.0, 0.0, 100.0, 1.0, 0.0, 0.0, -50.0, 0.0, 0.0, 1.0, 2.0, 0.0, 0.0, 0.0, 1.0]
+# A rear radar's mounting: turned half a circle, 3.5 m behind the vehicle's origin.
+_EXTRINSIC = [-1.0, 0.0, 0.0, -3.5, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.5, 0.0, 0.0, 0.0, 1.0]
+_SCALED = [2.0, 0.0, 0.0, 1.5, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 1.8, 0.0, 0.0, 0.0, 1.0]
 
 _HEADER: dict[str, Any] = {
     "vehicle": "truck-07",
@@ -97,6 +103,14 @@ def _raw(mutate: Callable[[dict[str, Any]], None]) -> bytes:
     import msgpack
 
     obj: dict[str, Any] = msgpack.unpackb(_detections(), raw=False)
+    mutate(obj)
+    return pack(obj)
+
+
+def _raw_v2(mutate: Callable[[dict[str, Any]], None]) -> bytes:
+    import msgpack
+
+    obj: dict[str, Any] = msgpack.unpackb(_detections(extrinsic=_EXTRINSIC), raw=False)
     mutate(obj)
     return pack(obj)
 
@@ -147,6 +161,56 @@ def _tracks(schema_version: int = 1, covariance: bool = True) -> bytes:
     )
 
 
+_STAMP_NS: int = _HEADER["stamp_ns"]
+_SENSORS = ["lidar_top", "radar_rear"]
+
+
+def _vehicle_tracks(empty: bool = False) -> bytes:
+    """A vehicle fusing a lidar and a rear radar, after a lidar frame: the car was last
+    updated by both (the radar 50 ms earlier), the young pedestrian by the lidar alone. Empty:
+    three sensors in world coordinates, no tracks yet."""
+    tracks = replace(
+        _track_arrays(),
+        covariance=covariance_to_upper(np.stack([np.eye(6) * 0.25, np.eye(6)])),
+        age_s=np.array([1.5, 0.0]),
+        time_since_update_s=np.array([0.0, 0.0]),
+        existence=np.array([0.96875, 0.5]),
+        sensor_stamp_ns=np.array([[_STAMP_NS, _STAMP_NS - 50_000_000], [_STAMP_NS, -1]]),
+    )
+    sensors, states = _SENSORS, [SensorCondition.OK, SensorCondition.PROBATION]
+    frame_id, pose = "base_link", None
+    if empty:
+        none: dict[str, Any] = {c.name: getattr(tracks, c.name)[:0] for c in VEHICLE_TRACK_COLUMNS}
+        none.update(covariance=None, sensor_stamp_ns=np.zeros((0, 3), np.int64))
+        tracks = replace(tracks, **none)
+        sensors = [*_SENSORS, "camera_front"]
+        states = [SensorCondition.OK, SensorCondition.SILENT, SensorCondition.UNSEEN]
+        frame_id, pose = "world", _POSE
+    return encode_vehicle_track_frame(
+        vehicle="truck-07",
+        seq=1042,
+        stamp_ns=_STAMP_NS,
+        sensor="lidar_top",
+        sensor_seq=42,
+        frame_id=frame_id,
+        pose=pose,
+        instance="simpletrack-a",
+        received_ns=1_700_000_000_130_000_000,
+        published_ns=1_700_000_000_135_000_000,
+        sensors=sensors,
+        sensor_state=states,
+        tracks=tracks,
+    )
+
+
+def _raw_vehicle_tracks(mutate: Callable[[dict[str, Any]], None]) -> bytes:
+    import msgpack
+
+    obj: dict[str, Any] = msgpack.unpackb(_vehicle_tracks(), raw=False)
+    mutate(obj)
+    return pack(obj)
+
+
 def _raw_tracks(schema_version: int, mutate: Callable[[dict[str, Any]], None]) -> bytes:
     import msgpack
 
@@ -155,7 +219,11 @@ def _raw_tracks(schema_version: int, mutate: Callable[[dict[str, Any]], None]) -
     return pack(obj)
 
 
-def _error() -> bytes:
+def _error(
+    reason: ErrorReason = ErrorReason.UNKNOWN_CLASS,
+    field: str | None = "boxes.classes.1",
+    detail: str = "class 'Tram' is not tracked here; known: Car, Pedestrian, Cyclist",
+) -> bytes:
     return encode(
         FrameError(
             schema_version=1,
@@ -163,9 +231,9 @@ def _error() -> bytes:
             sensor="lidar_top",
             seq=42,
             stamp_ns=1_700_000_000_100_000_000,
-            reason=ErrorReason.UNKNOWN_CLASS,
-            field="boxes.classes.1",
-            detail="class 'Tram' is not tracked here; known: Car, Pedestrian, Cyclist",
+            reason=reason,
+            field=field,
+            detail=detail,
             instance="simpletrack-a",
             received_ns=1_700_000_000_130_000_000,
         )
@@ -186,6 +254,8 @@ def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
 
 
 _DELETE = object()
+# One track of the basic vehicle frame, two sensors: 24 bytes where 32 belong.
+_SHORT_STAMPS = np.array([[_STAMP_NS, -1], [_STAMP_NS, -1]], np.int64).tobytes()[:24]
 _NAN_CENTER = _f32([[10.0, 0.0, 0.75], [np.nan, -2.5, 0.75], [12.0, -5.0, 0.75]]).tobytes()
 _ZERO_SIZE = _f32([[4.5, 1.75, 1.5], [4.5, 0.0, 1.5], [4.5, 1.75, 1.5]]).tobytes()
 # Finite but absurd: the largest float32, the box that used to come back as inf.
@@ -216,7 +286,44 @@ VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
         lambda: _raw_tracks(2, _set("schema_version", 3)),
     ),
     "error_unknown_class": ("FrameError", _error),
-    "invalid_wrong_version": ("DetectionFrame", lambda: _raw(_set("schema_version", 2))),
+    "error_sensor_flagged": (
+        "FrameError",
+        lambda: _error(
+            ErrorReason.SENSOR_FLAGGED,
+            None,
+            "clock: stamps 2.3 s ahead of the vehicle's other sensors; frames kept out",
+        ),
+    ),
+    "detection_extrinsic": (
+        "DetectionFrame",
+        lambda: _detections(pose=_POSE, session_id=7, extrinsic=_EXTRINSIC),
+    ),
+    # An extrinsic in a frame that says version 1: refused as a version-1 reader would.
+    "invalid_detection_v1_extrinsic": (
+        "DetectionFrame",
+        lambda: _raw_v2(_set("schema_version", 1)),
+    ),
+    "invalid_extrinsic_not_rigid": ("DetectionFrame", lambda: _raw_v2(_set("extrinsic", _SCALED))),
+    "vehicle_tracks_basic": ("VehicleTrackFrame", _vehicle_tracks),
+    "vehicle_tracks_empty": ("VehicleTrackFrame", lambda: _vehicle_tracks(empty=True)),
+    "invalid_vehicle_tracks_sensor_stamp_width": (
+        "VehicleTrackFrame",
+        lambda: _raw_vehicle_tracks(_set("tracks.sensor_stamp_ns", _SHORT_STAMPS)),
+    ),
+    "invalid_vehicle_tracks_existence": (
+        "VehicleTrackFrame",
+        lambda: _raw_vehicle_tracks(_set("tracks.existence", np.array([0.5, 1.5]).tobytes())),
+    ),
+    "invalid_vehicle_tracks_sensor_state": (
+        "VehicleTrackFrame",
+        lambda: _raw_vehicle_tracks(_set("sensor_state", ["ok"])),
+    ),
+    "invalid_vehicle_tracks_wrong_version": (
+        "VehicleTrackFrame",
+        lambda: _raw_vehicle_tracks(_set("schema_version", 2)),
+    ),
+    # Version 3: 2 (this vector's number until DetectionFrame version 2) is read now.
+    "invalid_wrong_version": ("DetectionFrame", lambda: _raw(_set("schema_version", 3))),
     "invalid_missing_field": ("DetectionFrame", lambda: _raw(_set("stamp_ns", _DELETE))),
     "invalid_extra_field": ("DetectionFrame", lambda: _raw(_set("speed", 1.0))),
     "invalid_wrong_type": ("DetectionFrame", lambda: _raw(_set("seq", "42"))),
@@ -258,6 +365,19 @@ def decoded_json(kind: str, payload: bytes) -> dict[str, Any]:
             **{c.name: _array_json(getattr(d.boxes, c.name)) for c in DETECTION_COLUMNS},
         }
         return {"message": kind, "valid": True, "decoded": msg}
+    if kind == "VehicleTrackFrame":
+        v = decode_vehicle_track_frame(payload)
+        if isinstance(v, Rejection):
+            return {"message": kind, "valid": False, "reason": v.reason.value, "field": v.field}
+        vehicle_frame, arrays = v
+        msg = to_map(vehicle_frame)
+        msg["sensor_state"] = [s.value for s in vehicle_frame.sensor_state]
+        msg["tracks"] = {
+            "count": len(arrays),
+            "classes": list(arrays.classes),
+            **{c.name: _array_json(getattr(arrays, c.name)) for c in VEHICLE_TRACK_COLUMNS},
+        }
+        return {"message": kind, "valid": True, "decoded": msg}
     if kind == "TrackFrame":
         t = decode_track_frame(payload)
         if isinstance(t, Rejection):
@@ -291,7 +411,13 @@ def _dumps(obj: Any) -> str:
 
 
 # The README's byte-exact examples: one message of each kind, as annotated hex.
-EXAMPLES = ("detection_basic", "tracks_basic", "tracks_v2", "error_unknown_class")
+EXAMPLES = (
+    "detection_basic",
+    "tracks_basic",
+    "tracks_v2",
+    "vehicle_tracks_basic",
+    "error_unknown_class",
+)
 README = ROOT / "README.md"
 _EXAMPLES_BEGIN = "<!-- generated:examples (python -m simpletrack.wire.generate) -->"
 _EXAMPLES_END = "<!-- end generated:examples -->"

@@ -4,6 +4,11 @@ Per sensor, under a configurable prefix (default ``fleet``):
     <prefix>/<vehicle>/<sensor>/detections   in:  DetectionFrame
     <prefix>/<vehicle>/<sensor>/tracks       out: TrackFrame
     <prefix>/<vehicle>/<sensor>/errors       out: FrameError
+Per fused vehicle (its sensors feed one tracker):
+    <prefix>/<vehicle>/@vehicle/tracks       out: VehicleTrackFrame
+``@vehicle`` is a verbatim chunk: ``*`` never matches it, so a ``<prefix>/*/*/tracks``
+subscriber (of sensor TrackFrames) never receives a vehicle's frames, and no sensor can be
+named so (NAME_PATTERN refuses '@').
 Per service instance (``@`` chunks never match ``*``, so fleet wildcards cannot hit them):
     <prefix>/@simpletrack/<instance>                               liveliness token
     <prefix>/@simpletrack/<instance>/status                        queryable: ServiceStatus
@@ -19,8 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 SERVICE_CHUNK = "@simpletrack"
-# A fused vehicle's stream: <prefix>/<vehicle>/@vehicle/tracks. A verbatim chunk: ``*``
-# never matches it, and no sensor can be so named (NAME_PATTERN).
+# The stream chunk of a vehicle's fused tracks, where a sensor's name would be; also the
+# sensor name its state is checkpointed and handed off under (SensorSnapshot.sensor).
 VEHICLE_STREAM = "@vehicle"
 DETECTIONS, TRACKS, ERRORS = "detections", "tracks", "errors"
 
@@ -83,7 +88,8 @@ class Keys:
         return parts[2], parts[3]
 
     def sensor_of(self, key: str) -> tuple[str, str] | None:
-        """(vehicle, sensor) of a ``.../<vehicle>/<sensor>/<leaf>`` key under this prefix."""
+        """(vehicle, sensor) of a ``.../<vehicle>/<sensor>/<leaf>`` key under this prefix; a
+        vehicle's fused stream gives ``(vehicle, VEHICLE_STREAM)``, ``("veh01", "@vehicle")``."""
         head = self.prefix + "/"
         if not key.startswith(head):
             return None

@@ -19,13 +19,14 @@ from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler
 from simpletrack.wire.columns import (
     DETECTION_SPECS,
     TRACK_SPECS,
+    VEHICLE_TRACK_SPECS,
     BoxArrays,
     ColumnSpec,
     to_column,
 )
-from simpletrack.wire.messages import MAX_NOTICE_SEQS
+from simpletrack.wire.messages import MAX_FUSED_SENSORS, MAX_NOTICE_SEQS, SNAPSHOT_SENSOR_PATTERN
 from simpletrack.wire.messages import NAME_PATTERN as NAME_PATTERN  # the server's import
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason, SensorCondition
 
 Name = Annotated[str, Field(pattern=NAME_PATTERN, description="letters, digits, _ . - (<= 64)")]
 Int64 = Annotated[int, Field(ge=0, le=2**63 - 1)]
@@ -38,6 +39,16 @@ Pose = Annotated[
         description="4x4 rigid transform sensor->world, row-major, float64",
     ),
 ]
+Extrinsic = Annotated[
+    list[float],
+    Field(
+        min_length=16,
+        max_length=16,
+        description="4x4 rigid transform sensor->vehicle, row-major, float64",
+    ),
+]
+# Not strict, as FrameError.reason: the wire carries the value's string.
+Condition = Annotated[SensorCondition, Field(strict=False)]
 
 
 def _column(spec: ColumnSpec, doc: str) -> Any:
@@ -152,8 +163,9 @@ class _Header(WireModel):
     stamp_ns: Int64 = Field(description="sensor time of the frame, nanoseconds")
 
 
-class DetectionFrame(_Header):
-    """One sensor frame of 3D detections: ``<prefix>/<vehicle>/<sensor>/detections``."""
+class DetectionFrameV1(_Header):
+    """One sensor frame of 3D detections: ``<prefix>/<vehicle>/<sensor>/detections``
+    (version 1, what a publisher without an extrinsic sends)."""
 
     frame_id: Annotated[str, Field(min_length=1, max_length=128)] = Field(
         description="name of the coordinate frame the boxes are expressed in"
@@ -168,6 +180,28 @@ class DetectionFrame(_Header):
 
     def pose_matrix(self) -> npt.NDArray[np.float64] | None:
         return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
+
+
+class DetectionFrame(DetectionFrameV1):
+    """One sensor frame of 3D detections: ``<prefix>/<vehicle>/<sensor>/detections``
+    (version 2: the optional sensor->vehicle extrinsic)."""
+
+    schema_version: Literal[2] = Field(  # type: ignore[assignment]  # v1 is a separate model
+        description="2 for this layout (1: DetectionFrameV1, without extrinsic)"
+    )
+    extrinsic: Extrinsic | None = Field(
+        default=None,
+        description="sensor->vehicle 4x4 rigid transform, row-major: the sensor's mounting, "
+        "by which a vehicle's fused tracker puts its boxes in the vehicle's frame",
+    )
+
+    @model_serializer(mode="wrap")
+    def _omit_absent_extrinsic(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        # Absent rather than nil, as the encoders write it (simpletrack.wire.messages.OMIT_NONE).
+        out: dict[str, Any] = handler(self)
+        if out.get("extrinsic", 0) is None:
+            del out["extrinsic"]
+        return out
 
 
 class TrackFrameV1(_Header):
@@ -197,6 +231,58 @@ class TrackFrame(TrackFrameV1):
         description="2 for this layout (1: TrackFrameV1)"
     )
     tracks: TrackColumns
+
+
+class VehicleTrackColumns(TrackColumns):
+    """A vehicle's N fused tracks as columns: a TrackFrame version 2's and two more."""
+
+    existence: bytes = _column(
+        VEHICLE_TRACK_SPECS["existence"], "float64 probability in [0, 1] that the track is real"
+    )
+    sensor_stamp_ns: bytes = _column(
+        VEHICLE_TRACK_SPECS["sensor_stamp_ns"],
+        "int64 count x len(sensors): stamp_ns of each sensor's last update of the track, "
+        "-1 when that sensor never updated it",
+    )
+
+
+class VehicleTrackFrame(WireModel):
+    """A vehicle's fused tracks: ``<prefix>/<vehicle>/@vehicle/tracks``, one tracker fed by
+    the vehicle's sensors. (vehicle, seq, stamp_ns) identify a message: a repeat carries the
+    same three."""
+
+    schema_version: Literal[1] = Field(description="1 for this layout")
+    vehicle: Name
+    seq: Int64 = Field(
+        description="the vehicle stream's message counter: +1 per message, kept across "
+        "restarts and failovers"
+    )
+    stamp_ns: Int64 = Field(
+        description="the time every box is at: the stamp of the input frame that produced it"
+    )
+    sensor: Name = Field(description="the sensor whose frame produced this message")
+    sensor_seq: Int64 = Field(description="that frame's seq")
+    frame_id: Annotated[str, Field(min_length=1, max_length=128)] = Field(
+        description="the tracking frame: the world frame when the vehicle's frames carry "
+        "poses, else the vehicle's frame"
+    )
+    pose: Pose | None = Field(default=None, description="the producing frame's pose, echoed")
+    instance: Name = Field(description="id of the service instance that tracked the vehicle")
+    received_ns: Int64 = Field(
+        description="service wall clock (unix ns) at receipt of the producing frame"
+    )
+    published_ns: Int64 = Field(description="service wall clock (unix ns) at publication")
+    sensors: Annotated[list[Name], Field(min_length=1, max_length=MAX_FUSED_SENSORS)] = Field(
+        description="the vehicle's fused sensors, unique: the order of sensor_state and of "
+        "the columns of tracks.sensor_stamp_ns"
+    )
+    sensor_state: Annotated[list[Condition], Field(max_length=MAX_FUSED_SENSORS)] = Field(
+        description="each sensor's condition, in the order of sensors"
+    )
+    tracks: VehicleTrackColumns
+
+    def pose_matrix(self) -> npt.NDArray[np.float64] | None:
+        return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
 
 
 class FrameError(WireModel):
@@ -252,8 +338,44 @@ class SensorStatus(WireModel):
     )
 
 
-class ServiceStatus(WireModel):
-    """Reply of the status queryable ``<prefix>/@simpletrack/<instance>/status``."""
+class FusedSensorStatus(WireModel):
+    """One sensor of a fused vehicle, as the vehicle's tracker sees it."""
+
+    sensor: Name
+    state: Condition = Field(description="the sensor's condition (SensorCondition)")
+    last_seq: Int64 | None
+    last_stamp_ns: Int64 | None
+    frames: Int64 = Field(description="its frames applied to the vehicle's tracks")
+    idle_s: float | None = Field(description="seconds since its last frame arrived")
+    latency_s: float | None = Field(
+        description="median stamp -> receipt over its recent frames, seconds"
+    )
+    clock_offset_s: float | None = Field(description="estimated offset of its clock, seconds")
+    offset_m: Annotated[list[float], Field(min_length=2, max_length=2)] | None = Field(
+        description="estimated x, y offset of its detections from the vehicle's tracks, metres"
+    )
+    flagged_frames: Int64 = Field(description="its frames kept out (clock or extrinsic)")
+    detail: Annotated[str, Field(max_length=256)] = Field(
+        default="", description="why it is flagged; empty when ok"
+    )
+
+
+class VehicleStatus(WireModel):
+    """A fused vehicle: one tracker fed by its sensors."""
+
+    vehicle: Name
+    seq: Int64 | None = Field(description="seq of its last VehicleTrackFrame")
+    last_stamp_ns: Int64 | None
+    active_tracks: Int64
+    frames: Int64 = Field(description="input frames applied")
+    late_frames: Int64 = Field(description="frames refused as late")
+    reprocessed_frames: Int64 = Field(description="frames applied again after a late one")
+    sensors: Annotated[list[FusedSensorStatus], Field(max_length=MAX_FUSED_SENSORS)]
+
+
+class ServiceStatusV1(WireModel):
+    """Reply of the status queryable ``<prefix>/@simpletrack/<instance>/status`` (version 1,
+    without vehicles)."""
 
     schema_version: Literal[1]
     instance: Name
@@ -275,13 +397,25 @@ class ServiceStatus(WireModel):
     failovers: Int64 = Field(default=0, description="sensors taken over from a member gone")
 
 
+class ServiceStatus(ServiceStatusV1):
+    """Reply of the status queryable ``<prefix>/@simpletrack/<instance>/status`` (version 2:
+    the fused vehicles)."""
+
+    schema_version: Literal[2]  # type: ignore[assignment]  # v1 is a separate model
+    vehicles: list[VehicleStatus] = Field(
+        default_factory=list, description="the fused vehicles this instance holds"
+    )
+
+
 class SensorSnapshot(WireModel):
     """One sensor's tracker state: the snapshot file format, and the reply of the snapshot
     queryable ``<prefix>/@simpletrack/<instance>/snapshot/<vehicle>/<sensor>``."""
 
     schema_version: Literal[1]
     vehicle: Name
-    sensor: Name
+    sensor: Annotated[str, Field(pattern=SNAPSHOT_SENSOR_PATTERN)] = Field(
+        description="the sensor, or @vehicle for a fused vehicle's tracker"
+    )
     last_seq: Int64 | None = None
     last_stamp_ns: Int64 | None = None
     stamp_origin_ns: Int64 | None = Field(
@@ -303,9 +437,12 @@ class SensorSnapshot(WireModel):
 
 MESSAGES: tuple[type[WireModel], ...] = (
     DetectionFrame,
+    DetectionFrameV1,
     TrackFrame,
     TrackFrameV1,
+    VehicleTrackFrame,
     FrameError,
     ServiceStatus,
+    ServiceStatusV1,
     SensorSnapshot,
 )

@@ -6,10 +6,19 @@ from enum import IntEnum, StrEnum
 from typing import Final
 
 SCHEMA_VERSION: Final = 1
-# TrackFrame alone is at version 2 (covariance, ages in seconds); decoders read 1 and 2,
+# TrackFrame is at version 2 (covariance, ages in seconds); decoders read 1 and 2,
 # and the service sends either (its setting tracks_schema_version; schemas/README.md).
 TRACK_SCHEMA_VERSION: Final = 2
 TRACK_SCHEMA_VERSIONS: Final = (1, 2)
+# DetectionFrame version 2 adds the optional extrinsic. Encoders write 2 only when they send
+# one, so a frame without it is byte for byte what a version-1 publisher sent.
+DETECTION_SCHEMA_VERSION: Final = 2
+DETECTION_SCHEMA_VERSIONS: Final = (1, 2)
+# ServiceStatus version 2 adds the fused vehicles; decoders read 1 and 2.
+STATUS_SCHEMA_VERSION: Final = 2
+STATUS_SCHEMA_VERSIONS: Final = (1, 2)
+# VehicleTrackFrame is a message of its own, at its first version.
+VEHICLE_TRACK_SCHEMA_VERSION: Final = 1
 
 
 class ErrorReason(StrEnum):
@@ -33,9 +42,10 @@ class ErrorReason(StrEnum):
     SEQ_NOT_INCREASING = "seq_not_increasing"
     DUPLICATE_SEQ = "duplicate_seq"  # same seq as the last processed frame: ignored
     TOO_MANY_SENSORS = "too_many_sensors"
-    # Vehicle fusion: a fused sensor's frame the vehicle's tracker cannot take.
-    LATE = "late"  # older than the vehicle's re-processing history
-    SENSOR_FLAGGED = "sensor_flagged"  # its sensor's clock or extrinsic is off: kept out
+    # Vehicle fusion (docs/SERVICE.md, "Vehicle fusion"): a fused sensor's frame kept out of
+    # the vehicle's tracks.
+    LATE = "late"  # older than the vehicle's re-processing history: cannot be applied in order
+    SENSOR_FLAGGED = "sensor_flagged"  # the sensor's clock or extrinsic is off; detail says which
     # Load shedding: the frame was valid as far as anyone looked, but not processed.
     DROPPED_QUEUE_FULL = "dropped_queue_full"  # backpressure drop_oldest: the oldest goes
     DROPPED_SHUTDOWN = "dropped_shutdown"  # arrived after intake stopped, or drain timed out
@@ -47,6 +57,18 @@ class ErrorReason(StrEnum):
 DROP_REASONS = frozenset(
     {ErrorReason.DROPPED_QUEUE_FULL, ErrorReason.DROPPED_SHUTDOWN, ErrorReason.MISSED}
 )
+
+
+class SensorCondition(StrEnum):
+    """A fused sensor's condition, as a vehicle's track frames and the status report it
+    (``VehicleTrackFrame.sensor_state``, ``FusedSensorStatus.state``)."""
+
+    OK = "ok"
+    PROBATION = "probation"  # not yet verified against the others: updates tracks, starts none
+    SILENT = "silent"  # no frame for a while
+    CLOCK = "clock"  # its stamps are off: its frames are kept out
+    EXTRINSIC = "extrinsic"  # its detections are offset from the vehicle's tracks: kept out
+    UNSEEN = "unseen"  # configured, never heard
 
 
 class WireTrackState(IntEnum):

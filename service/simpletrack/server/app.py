@@ -48,7 +48,7 @@ from simpletrack.wire.codec import (
 )
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import ServiceStatus
-from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.reasons import STATUS_SCHEMA_VERSION, ErrorReason
 
 log = get_logger("service")
 # How long a starting member listens to the group's tokens before it takes frames: its
@@ -476,7 +476,7 @@ class Service:
         if only is not None:
             sensors = [st for st in sensors if (st.vehicle, st.sensor) == only]
         return ServiceStatus(
-            schema_version=SCHEMA_VERSION,
+            schema_version=STATUS_SCHEMA_VERSION,
             instance=self.settings.instance,
             version=package_version("simpletrack-service"),
             preset=self.settings.preset,
@@ -488,7 +488,7 @@ class Service:
             sensors=sensors,
             members=sorted(self.membership.members),
             standby_sensors=self._standby_count(),
-            **(dict(self._shared.counts) if self._shared is not None else {}),
+            **(dict[str, Any](self._shared.counts) if self._shared is not None else {}),
         )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
