@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import math
 import signal
 import threading
@@ -24,6 +25,7 @@ from zenoh import ext
 
 from simpletrack.core import jit, solvers
 from simpletrack.core.tracker import Tracker
+from simpletrack.core.vehicle import Condition
 from simpletrack.server.custody import Heard, Shared
 from simpletrack.server.group import Membership, Role, undeclare
 from simpletrack.server.intake import Inbound, Intake, Kind, WorkQueue, depth, worker_index
@@ -39,16 +41,11 @@ from simpletrack.server.streams import Streams
 from simpletrack.server.subscriptions import Subscriptions
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
-from simpletrack.wire.codec import (
-    DecodeLimits,
-    Rejection,
-    decode_track_frame,
-    decode_vehicle_track_frame,
-    encode,
-)
+from simpletrack.wire.codec import DecodeLimits, Rejection, decode_track_frame, encode
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import ServiceStatus
 from simpletrack.wire.reasons import STATUS_SCHEMA_VERSION, ErrorReason
+from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame
 
 log = get_logger("service")
 # How long a starting member listens to the group's tokens before it takes frames: its
@@ -312,6 +309,10 @@ class Service:
         m = self.metrics
         m.queue_depth.set_function(lambda: depth(self._queues))
         m.standby_sensors.set_function(lambda: self._standby_count())
+        for condition in Condition:
+            m.fusion_sensors.labels(condition=condition.value).set_function(
+                functools.partial(self._fused_sensors, condition)
+            )
         if self.settings.state_dir is None:
             m.snapshot_age.set(math.nan)  # no persistence configured
         else:
@@ -334,6 +335,15 @@ class Service:
         return self._workers[worker_index(key, len(self._workers))]
 
     # ------------------------------------------------------------------ the group
+    def _fused_sensors(self, condition: Condition) -> int:
+        return sum(
+            1
+            for w in self._workers
+            for v in w.sensors.vehicles()
+            for r in v.tracker.records.values()
+            if r.condition is condition
+        )
+
     def _standby_count(self) -> int:
         return sum(len(w.custody.standby) for w in self._workers)
 
@@ -473,8 +483,15 @@ class Service:
         """The service's status; ``only`` (vehicle, sensor) keeps that sensor's entry alone
         (what a resuming publisher asks for: its last processed seq)."""
         sensors = [st for w in self._workers for st in w.sensors.status()]
+        now = time.monotonic()
+        vehicles = []
+        for v in (v for w in self._workers for v in w.sensors.vehicles()):
+            entry, fused = v.status(now)
+            vehicles.append(entry)
+            sensors += fused
         if only is not None:
             sensors = [st for st in sensors if (st.vehicle, st.sensor) == only]
+            vehicles = [v for v in vehicles if v.vehicle == only[0]]
         return ServiceStatus(
             schema_version=STATUS_SCHEMA_VERSION,
             instance=self.settings.instance,
@@ -488,6 +505,7 @@ class Service:
             sensors=sensors,
             members=sorted(self.membership.members),
             standby_sensors=self._standby_count(),
+            vehicles=vehicles,
             **(dict[str, Any](self._shared.counts) if self._shared is not None else {}),
         )
 

@@ -19,10 +19,11 @@ from simpletrack.server.intake import Inbound
 from simpletrack.server.logs import get_logger
 from simpletrack.server.sensors import Arrival, Order, check_order, lead_ns
 from simpletrack.server.vehicles import VehicleState, Waiting
-from simpletrack.wire.codec import Rejection, decode_detection_frame, encode_vehicle_track_frame
+from simpletrack.wire.codec import Rejection, decode_detection_frame
 from simpletrack.wire.convert import boxes_from_wire, vehicle_tracks_to_wire
 from simpletrack.wire.keys import VEHICLE_STREAM
 from simpletrack.wire.reasons import ErrorReason
+from simpletrack.wire.vehicle_tracks import encode_vehicle_track_frame
 
 if TYPE_CHECKING:
     from simpletrack.server.worker import Worker
@@ -85,6 +86,8 @@ class FusedFrames:
             return
         state.arrivals[sensor] = arrival
         state.last_seen = time.monotonic()
+        if not replayed:
+            state.heard(sensor, arrival)
         if ctx.per_sensor_output:
             w._per_sensor(state, sensor, item, decoded, arrival)
         waiting = Waiting(item, sensor, decoded, arrival, transform, replayed or w._quiet)
@@ -188,7 +191,7 @@ class FusedFrames:
                 ErrorReason.INTERNAL_ERROR, "tracks", "non-finite tracks", arrival.seq,
                 arrival.stamp_ns))  # fmt: skip
             return
-        w.sensors.reserve_ids(state)  # type: ignore[arg-type]
+        w.sensors.reserve_ids(state)
         quiet = waiting.replayed and (
             state.published_seq is not None and vt.seq <= state.published_seq
         )

@@ -30,8 +30,13 @@ from simpletrack.wire.codec import DecodedDetections, DecodeLimits, Rejection, d
 from simpletrack.wire.codec import encode as encode_message
 from simpletrack.wire.header import peek_header
 from simpletrack.wire.keys import VEHICLE_STREAM
-from simpletrack.wire.models import SensorSnapshot
-from simpletrack.wire.reasons import SCHEMA_VERSION
+from simpletrack.wire.models import (
+    FusedSensorStatus,
+    SensorSnapshot,
+    SensorStatus,
+    VehicleStatus,
+)
+from simpletrack.wire.reasons import SCHEMA_VERSION, SensorCondition
 
 F64 = npt.NDArray[np.float64]
 STATE_FORMAT = 1
@@ -79,6 +84,64 @@ class VehicleState:
     # After a takeover: messages up to this seq reached planners already (not sent again).
     published_seq: int | None = None
     missed_by_sensor: dict[str, int] = field(default_factory=dict)  # the last ``holes``
+    # Per sensor: when its last frame arrived (monotonic) and its recent stamp -> receipt.
+    heard_at: dict[str, float] = field(default_factory=dict)
+    lags: dict[str, deque[float]] = field(default_factory=dict)
+
+    def heard(self, sensor: str, arrival: Arrival) -> None:
+        self.heard_at[sensor] = time.monotonic()
+        if arrival.received_ns is not None:
+            lags = self.lags.setdefault(sensor, deque(maxlen=64))
+            lags.append((arrival.received_ns - arrival.stamp_ns) * 1e-9)
+
+    def status(self, now: float) -> tuple[VehicleStatus, list[SensorStatus]]:
+        """The vehicle's entry of the service status, and one sensor entry per fused
+        sensor heard (what a publisher resuming its seq asks for)."""
+        t = self.tracker
+        fused, sensors = [], []
+        for name in t.sensors:
+            rec = t.records[name]
+            heard = self.heard_at.get(name)
+            idle = None if heard is None else round(now - heard, 3)
+            lags = self.lags.get(name)
+            fused.append(
+                FusedSensorStatus(
+                    sensor=name,
+                    state=SensorCondition(rec.condition.value),
+                    last_seq=rec.last_seq,
+                    last_stamp_ns=rec.last_stamp_ns,
+                    frames=rec.frames,
+                    idle_s=idle,
+                    latency_s=None if not lags else round(float(np.median(lags)), 4),
+                    clock_offset_s=None if rec.delta_s is None else round(rec.delta_s, 4),
+                    offset_m=None if rec.offset_m is None else [round(v, 2) for v in rec.offset_m],
+                    flagged_frames=rec.kept_out,
+                    detail=rec.detail[:256],
+                )
+            )
+            if rec.last_seq is not None and idle is not None:
+                sensors.append(
+                    SensorStatus(
+                        vehicle=self.vehicle,
+                        sensor=name,
+                        last_seq=rec.last_seq,
+                        last_stamp_ns=rec.last_stamp_ns,
+                        frames=rec.frames,
+                        active_tracks=self.active_tracks,
+                        idle_s=idle,
+                    )
+                )
+        vehicle = VehicleStatus(
+            vehicle=self.vehicle,
+            seq=self.last_seq,
+            last_stamp_ns=t.last_ns,
+            active_tracks=self.active_tracks,
+            frames=self.frames,
+            late_frames=t.late,
+            reprocessed_frames=t.reprocessed,
+            sensors=fused,
+        )
+        return vehicle, sensors
 
     @property
     def id_next(self) -> int:
