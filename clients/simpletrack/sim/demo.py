@@ -1,14 +1,16 @@
 """The live demo: the tracking service and a simulated fleet on one machine, no router and no
 data files, with the planner-side view scored against the simulator's ground truth.
 
-Frames are paced in real time: frame k of every sensor is stamped ``start + k / rate`` and sent
-at that moment, so the latency (stamp to arrival at the planner) includes any lag of the demo
-itself. Tracks come back in the world frame (the frames carry the sensor pose) and are scored
-against the world-frame truth of the same frame.
+Frames are paced in real time: a frame of the simulator's tick k is stamped ``start + k x dt``
+(plus its stream's phase, below) and sent that long after the start plus the sensor's latency
+(``SensorSpec.latency_s``, none by default), so the latency (stamp to arrival at the planner)
+includes the sensor's and any lag of the demo itself. Tracks come back in the world frame (the
+frames carry the sensor pose) and are scored against the world-frame truth of the same frame.
 """
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
 import os
@@ -18,7 +20,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -79,7 +80,7 @@ class DemoOptions:
 class DemoResult:
     stats: FleetStats
     elapsed: float
-    frames: int  # simulation frames (per sensor)
+    frames: int  # simulator ticks (frames per sensor when every sensor runs at the fleet rate)
     endpoint: str
     service: ServiceMode
     stopped_by: str
@@ -389,10 +390,13 @@ class FleetDemo:
     ) -> str:
         o = self.options
         dt = sim.dt
-        # Sensors are not synchronised: stream i sends frame k at (k + i / n) / rate, which
+        # Sensors are not synchronised: stream i sends tick k's frame at (k + i / n) x dt, which
         # also spreads the service's load over the frame period as a real fleet would.
         phase = {stream: i / len(pubs) for i, stream in enumerate(sim.streams)}
-        pending: deque[tuple[float, int, SensorFrame]] = deque()
+        # By send time: a sensor's latency can send a frame after later-stamped ones of other
+        # sensors (never of its own stream); the counter keeps equal times in step() order.
+        pending: list[tuple[float, int, int, SensorFrame]] = []
+        order = 0
         t0 = time.monotonic()
         t0_ns = time.time_ns()
         next_view = t0
@@ -407,11 +411,13 @@ class FleetDemo:
             if now >= t0 + k * dt:
                 for f in sim.step():
                     offset = (k + phase[(f.vehicle, f.sensor)]) * dt
-                    pending.append((t0 + offset, t0_ns + round(offset * 1e9), f))
+                    send = t0 + offset + f.latency_s
+                    heapq.heappush(pending, (send, order, t0_ns + round(offset * 1e9), f))
+                    order += 1
                 k += 1
                 result.frames = k
             while pending and pending[0][0] <= now:
-                _, stamp_ns, f = pending.popleft()
+                _, _, stamp_ns, f = heapq.heappop(pending)
                 self._publish(f, pubs[(f.vehicle, f.sensor)], stamp_ns)
             due = min(t0 + k * dt, pending[0][0] if pending else math.inf)
             self._consume(sub, timeout=min(due - time.monotonic(), 0.05))

@@ -2,13 +2,17 @@
 objects of several classes, and a detector model with the faults a real one has.
 
 Nothing here touches the network or a clock: ``FleetSimulator.step()`` advances simulated time
-by one frame and returns, for every sensor of every vehicle, the detections (sensor frame, as
-``simpletrack.core.boxes.Boxes``), the sensor->world pose and the ground truth (world frame).
+by one base tick and returns, for every sensor of every vehicle that is due at that tick, the
+detections (sensor frame, as ``simpletrack.core.boxes.Boxes``), the sensor->world pose, the
+publish latency and the ground truth (world frame), the sensor's and its vehicle's. Sensors
+have their own rates, latencies and detectors; by default all run at the fleet's rate with the
+fleet's detector and no latency, one frame of each per tick.
 
 The world is shared by the fleet: one object may be seen by several sensors. Random streams are
-split per purpose (world motion, each sensor's detector) from one seed, so the same seed gives
-the same world, and changing the detector model or the number of sensors does not change how
-the objects move.
+split per purpose (world motion, each sensor's detector, each sensor's latency) from one seed,
+so the same seed gives the same world, and changing the detector model, the latencies or the
+number of sensors does not change how the objects move. The base tick does: the objects'
+random walk is integrated once per tick (see ``FleetSimulator``).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simpletrack.core.boxes import Boxes, transform_boxes, wrap_angle
 from simpletrack.core.config import TrackerConfig
+from simpletrack.sim import clock
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -80,25 +85,6 @@ def default_classes() -> dict[str, ObjectClass]:
     }
 
 
-class SensorSpec(_Frozen):
-    """A sensor mounted on every vehicle of the fleet."""
-
-    name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="key-safe sensor id")
-    mount: tuple[float, float, float, float] = Field(
-        default=(0.0, 0.0, 1.8, 0.0), description="x, y, z, yaw of the sensor in the vehicle frame"
-    )
-    fov_deg: Annotated[float, Field(gt=0.0, le=360.0)] = 360.0
-    max_range: Positive = 50.0
-    min_range: NonNegative = 1.0
-
-
-def default_sensors() -> tuple[SensorSpec, ...]:
-    return (
-        SensorSpec(name="lidar", mount=(0.0, 0.0, 1.8, 0.0), fov_deg=360.0, max_range=50.0),
-        SensorSpec(name="front", mount=(1.6, 0.0, 1.4, 0.0), fov_deg=100.0, max_range=70.0),
-    )
-
-
 class DetectorModel(_Frozen):
     """The faults of the simulated detector. Scores are probabilities in [0, 1].
 
@@ -115,7 +101,9 @@ class DetectorModel(_Frozen):
       by nearer boxes cuts its detection chance by up to ``occlusion_miss`` and makes a low
       score likelier (``occlusion_low_score``).
     - **Range**: the detection chance falls by ``range_miss`` x (range / max range)^2, and the
-      centre noise grows by ``centre_noise_per_m``.
+      centre noise grows by ``centre_noise_per_m``. ``range_noise_per_m`` adds noise along the
+      line of sight only, growing with range: how a camera's 3D boxes fail (depth is inferred,
+      not measured); 0 for a lidar, whose range is measured.
     - **Clutter**: Poisson false positives, uniform over the view, mostly low-scored; duplicate
       overlapping boxes (pre-NMS output).
     - **Scores**: true boxes score uniform in ``score_high`` unless low-scored (then uniform in
@@ -142,6 +130,10 @@ class DetectorModel(_Frozen):
 
     centre_noise: NonNegative = Field(default=0.12, description="centre std (m) at zero range")
     centre_noise_per_m: NonNegative = Field(default=0.004, description="extra centre std per metre")
+    range_noise_per_m: NonNegative = Field(
+        default=0.0,
+        description="extra std (m) along the line of sight per metre of range (depth error)",
+    )
     yaw_noise: NonNegative = Field(default=0.06, description="yaw std (rad)")
     size_noise: Fraction = Field(default=0.05, description="relative size std")
     seen_s: Positive = Field(default=3.0, description="mean time (s) an object stays 'seen'")
@@ -185,6 +177,47 @@ class DetectorModel(_Frozen):
         return self.lost_s / (self.seen_s + self.lost_s)
 
 
+class SensorSpec(_Frozen):
+    """A sensor mounted on every vehicle of the fleet.
+
+    ``rate_hz`` and ``detector`` default to the fleet's (``SimConfig.rate_hz``,
+    ``SimConfig.detector``). ``latency_s``: the delay from a frame's stamp to the moment the
+    vehicle publishes it (capture, transfer, the detection network), drawn uniformly in
+    [min, max] per frame; a sensor's frames leave in the order they were stamped (its pipeline
+    is a queue), so a draw that would overtake the previous frame waits for it, which keeps
+    the delay within [min, max]."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_\-]+$", description="key-safe sensor id")
+    mount: tuple[float, float, float, float] = Field(
+        default=(0.0, 0.0, 1.8, 0.0), description="x, y, z, yaw of the sensor in the vehicle frame"
+    )
+    fov_deg: Annotated[float, Field(gt=0.0, le=360.0)] = 360.0
+    max_range: Positive = 50.0
+    min_range: NonNegative = 1.0
+    rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] | None = Field(
+        default=None, description="frames per second (None: the fleet's rate_hz)"
+    )
+    latency_s: tuple[NonNegative, NonNegative] = Field(
+        default=(0.0, 0.0), description="min, max delay (s) from a frame's stamp to its publication"
+    )
+    detector: DetectorModel | None = Field(
+        default=None, description="this sensor's detector (None: the fleet's detector)"
+    )
+
+    @model_validator(mode="after")
+    def _latency_ordered(self) -> SensorSpec:
+        if self.latency_s[0] > self.latency_s[1]:
+            raise ValueError(f"latency_s {self.latency_s} must be (min, max)")
+        return self
+
+
+def default_sensors() -> tuple[SensorSpec, ...]:
+    return (
+        SensorSpec(name="lidar", mount=(0.0, 0.0, 1.8, 0.0), fov_deg=360.0, max_range=50.0),
+        SensorSpec(name="front", mount=(1.6, 0.0, 1.4, 0.0), fov_deg=100.0, max_range=70.0),
+    )
+
+
 class SimConfig(_Frozen):
     """The whole simulated world. Validated: a bad value is named in the error."""
 
@@ -198,9 +231,13 @@ class SimConfig(_Frozen):
     area: Annotated[float, Field(gt=10.0)] = Field(
         default=180.0, description="side of the square world (m), centred on the origin"
     )
-    rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] = 10.0
+    rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] = Field(
+        default=10.0, description="frames per second of the sensors without a rate_hz of their own"
+    )
     ego_speed: tuple[NonNegative, NonNegative] = (5.0, 10.0)
-    detector: DetectorModel = DetectorModel()
+    detector: DetectorModel = Field(
+        default=DetectorModel(), description="the detector of the sensors without one of their own"
+    )
     truth_ignore_occlusion: Fraction = Field(
         default=0.8, description="ground truth hidden more than this is 'ignored' by the scorer"
     )
@@ -211,6 +248,24 @@ class SimConfig(_Frozen):
         if len(set(names)) != len(names):
             raise ValueError(f"sensor names must be unique, got {names}")
         return self
+
+    @model_validator(mode="after")
+    def _rates_share_a_tick(self) -> SimConfig:
+        clock.base_tick(self.sensor_rates)  # raises ValueError naming the rates
+        return self
+
+    @property
+    def sensor_rates(self) -> dict[str, float]:
+        """Each sensor's frames per second, by name (the fleet's rate where it has none)."""
+        return {s.name: self.rate_hz if s.rate_hz is None else s.rate_hz for s in self.sensors}
+
+    @property
+    def base_tick(self) -> clock.BaseTick:
+        """The world's time step and each sensor's frame interval in steps (``clock``)."""
+        return clock.base_tick(self.sensor_rates)
+
+    def sensor_detector(self, sensor: SensorSpec) -> DetectorModel:
+        return self.detector if sensor.detector is None else sensor.detector
 
     @property
     def class_names(self) -> tuple[str, ...]:
@@ -233,10 +288,19 @@ def vehicle_id(index: int) -> str:
 class SensorFrame:
     """One sensor's frame: what the detector saw, where the sensor was, and what was there.
 
-    ``detections`` are in the sensor frame; ``pose`` maps sensor -> world. The truth is in the
-    world frame: ``truth_ids`` are global object ids (stable while an object lives, never
-    reused); ``truth_ignore`` marks objects hidden more than ``truth_ignore_occlusion``;
-    ``truth_occlusion`` is the hidden fraction of each object's outline seen from the sensor."""
+    ``seq`` counts this stream's frames (0, 1, 2, ...); ``stamp`` is the simulated time the
+    frame shows; ``latency_s`` the delay after it before the vehicle publishes the frame (0 for
+    a sensor without latency). ``detections`` are in the sensor frame; ``pose`` maps sensor ->
+    world. The truth is in the world frame: ``truth_ids`` are global object ids (stable while
+    an object lives, never reused); ``truth_ignore`` marks objects hidden more than
+    ``truth_ignore_occlusion``; ``truth_occlusion`` is the hidden fraction of each object's
+    outline seen from the sensor.
+
+    ``vehicle_truth*`` is the truth a fusion of all the vehicle's sensors is scored against:
+    every object in view of any of its sensors at this stamp (whether or not that sensor has a
+    frame now), ignored where every sensor that has it in view sees it hidden more than
+    ``truth_ignore_occlusion``. The vehicle's frames of one stamp share these arrays, read-only.
+    """
 
     vehicle: str
     sensor: str
@@ -248,6 +312,10 @@ class SensorFrame:
     truth: Boxes
     truth_ignore: Bool
     truth_occlusion: F64
+    latency_s: float
+    vehicle_truth_ids: I64
+    vehicle_truth: Boxes
+    vehicle_truth_ignore: Bool
 
     @property
     def truth_in_sensor_frame(self) -> Boxes:
@@ -277,6 +345,7 @@ class _Objects:
         self.turn_std = np.array([m.turn_rate_std for m in self.models])
         self.max_turn = np.array([m.max_turn_rate for m in self.models])
         self.detect_prob = np.array([m.detect_prob for m in self.models])
+        self.fleet_dt = 1.0 / config.rate_hz
         self.next_id = 0
         n = config.objects
         self.ids = np.zeros(0, dtype=np.int64)
@@ -312,6 +381,14 @@ class _Objects:
         self.turn = np.concatenate([self.turn, np.zeros(n)])
         self.size = np.concatenate([self.size, size])
 
+    def _cruise_change_chance(self, dt: float) -> float:
+        # 1 % per frame at the fleet's rate (the world before sensors had rates of their own),
+        # and the same chance per second on any other tick, so a finer tick does not make
+        # cruise speeds change more often.
+        if dt == self.fleet_dt:
+            return 0.01
+        return 1.0 - math.pow(0.99, dt / self.fleet_dt)
+
     def step(self, dt: float) -> None:
         rng = self.rng
         n = self.ids.shape[0]
@@ -321,7 +398,7 @@ class _Objects:
         ) * rng.standard_normal(n)
         self.turn = np.clip(self.turn, -self.max_turn[self.cls], self.max_turn[self.cls])
         # Speed relaxes towards a per-object cruise speed that itself drifts now and then.
-        change = rng.random(n) < 0.01
+        change = rng.random(n) < self._cruise_change_chance(dt)
         lo, hi = self.speed_range[self.cls, 0], self.speed_range[self.cls, 1]
         self.target_speed = np.where(change, rng.uniform(lo, hi), self.target_speed)
         self.speed += (self.target_speed - self.speed) * min(1.0, 0.5 * dt)
@@ -432,31 +509,33 @@ def occlusion(local: Boxes) -> F64:
     return np.asarray(np.minimum(hidden, 1.0), dtype=np.float64)
 
 
+def in_view(sensor: SensorSpec, local: Boxes) -> Bool:
+    """Boxes (sensor frame) whose centre lies within the sensor's field of view and range."""
+    r = np.hypot(local.x, local.y)
+    bearing = np.abs(np.arctan2(local.y, local.x))
+    half_fov = math.radians(sensor.fov_deg) / 2
+    return (r <= sensor.max_range) & (r >= sensor.min_range) & (bearing <= half_fov)
+
+
 class _Detector:
     """Turns one sensor's view of the world into detections."""
 
     def __init__(
         self, config: SimConfig, sensor: SensorSpec, detect_prob: F64, rng: np.random.Generator
     ) -> None:
-        self.model = config.detector
+        self.model = config.sensor_detector(sensor)
         self.sensor = sensor
         self.detect_prob = detect_prob
         self.rng = rng
         self.mean_size = np.array([m.size for m in config.classes.values()])
         self.n_classes = len(config.classes)
-        dt = 1.0 / config.rate_hz
+        dt = 1.0 / config.sensor_rates[sensor.name]
         # Per-frame switching chances: geometric sojourns with the stated mean durations.
         self._to_lost = min(1.0, dt / self.model.seen_s)
         self._to_seen = min(1.0, dt / self.model.lost_s)
         # The chain's state of the objects in view last frame, by id (sorted).
         self._ids = np.zeros(0, dtype=np.int64)
         self._lost = np.zeros(0, dtype=bool)
-
-    def in_view(self, local: Boxes) -> Bool:
-        r = np.hypot(local.x, local.y)
-        bearing = np.abs(np.arctan2(local.y, local.x))
-        half_fov = math.radians(self.sensor.fov_deg) / 2
-        return (r <= self.sensor.max_range) & (r >= self.sensor.min_range) & (bearing <= half_fov)
 
     def lost_state(self, ids: I64) -> Bool:
         """Advance each object's seen/lost chain one frame; True where it is now lost."""
@@ -490,6 +569,9 @@ class _Detector:
         params = det.params.copy()
         sigma = m.centre_noise + m.centre_noise_per_m * rr
         params[:, 0:2] += sigma[:, None] * rng.standard_normal((k, 2))
+        if m.range_noise_per_m > 0.0:  # drawn only then: a lidar's stream stays as it was
+            along = m.range_noise_per_m * rr * rng.standard_normal(k)
+            params[:, 0:2] += (along / np.maximum(rr, 1e-9))[:, None] * det.params[:, 0:2]
         params[:, 2] += 0.5 * sigma * rng.standard_normal(k)
         params[:, 3] = wrap_angle(params[:, 3] + m.yaw_noise * rng.standard_normal(k))
         params[:, 4:7] *= np.clip(1.0 + m.size_noise * rng.standard_normal((k, 3)), 0.5, 1.5)
@@ -545,17 +627,64 @@ def _concat(parts: list[Boxes]) -> Boxes:
     )
 
 
+class _Latency:
+    """One stream's publish delays: uniform draws on their own random stream, in stamp order."""
+
+    def __init__(self, sensor: SensorSpec, rng: np.random.Generator) -> None:
+        self.low, self.high = sensor.latency_s
+        self.rng = rng
+        self._last_publish = -math.inf
+
+    def draw(self, stamp: float) -> float:
+        if self.high == 0.0:
+            return 0.0
+        # A frame does not overtake the one before it: the sensor's pipeline is a queue. The
+        # wait stays below ``high``, since the previous frame left before its stamp + high.
+        latency = max(self.rng.uniform(self.low, self.high), self._last_publish - stamp)
+        self._last_publish = stamp + latency
+        return latency
+
+
+@dataclass(frozen=True, slots=True)
+class _View:
+    """What one sensor has in view at one stamp (world-order indices into the object arrays)."""
+
+    pose: F64
+    visible: Bool
+    local: Boxes
+    occluded: F64
+
+
 class FleetSimulator:
-    """The fleet and its world. ``step()`` returns one ``SensorFrame`` per vehicle sensor."""
+    """The fleet and its world, advanced one base tick per ``step()``.
+
+    The base tick (``dt``, ``base_hz``) is the longest step every sensor's period is a whole
+    number of (``clock.base_tick``): with every sensor at the fleet's ``rate_hz`` (the
+    default) it is one frame of every sensor, as before sensors had rates of their own.
+
+    The objects' random walk is integrated once per base tick: its turn-rate noise scales with
+    the square root of the tick, speed relaxation and cruise changes with the tick, so the
+    process is the same at any tick, but its sample path is not. A config whose base tick
+    differs (a sensor at another rate: 10 and 15 Hz tick at 30 Hz) moves the same seed's
+    objects along other paths than the lockstep fleet; detectors, latencies and sensors that
+    leave the base tick as it is change nothing in the world.
+    """
 
     def __init__(self, config: SimConfig | None = None) -> None:
         self.config = config or SimConfig()
         cfg = self.config
-        world_seed, ego_seed, det_seed = np.random.SeedSequence(cfg.seed).spawn(3)
+        tick = cfg.base_tick
+        self.base_hz = tick.hz
+        self.ticks_per_frame: dict[str, int] = dict(tick.every)
+        # Spawned children keep their index: the fourth stream (latency) leaves the first three
+        # as they were before it existed.
+        world_seed, ego_seed, det_seed, latency_seed = np.random.SeedSequence(cfg.seed).spawn(4)
         self._objects = _Objects(cfg, np.random.default_rng(world_seed))
         ego_rng = np.random.default_rng(ego_seed)
         self._egos = [_Ego(i, cfg, ego_rng) for i in range(cfg.vehicles)]
-        det_seeds = det_seed.spawn(cfg.vehicles * len(cfg.sensors))
+        n_sensors = len(cfg.sensors)
+        det_seeds = det_seed.spawn(cfg.vehicles * n_sensors)
+        latency_seeds = latency_seed.spawn(cfg.vehicles * n_sensors)
         self._mounts = [pose_matrix(*s.mount) for s in cfg.sensors]
         self._detectors = [
             [
@@ -563,74 +692,116 @@ class FleetSimulator:
                     cfg,
                     s,
                     self._objects.detect_prob,
-                    np.random.default_rng(det_seeds[v * len(cfg.sensors) + j]),
+                    np.random.default_rng(det_seeds[v * n_sensors + j]),
                 )
                 for j, s in enumerate(cfg.sensors)
             ]
             for v in range(cfg.vehicles)
         ]
-        self.frame = 0
+        self._latencies = [
+            [
+                _Latency(s, np.random.default_rng(latency_seeds[v * n_sensors + j]))
+                for j, s in enumerate(cfg.sensors)
+            ]
+            for v in range(cfg.vehicles)
+        ]
+        self._seqs = [[0] * n_sensors for _ in range(cfg.vehicles)]
+        self.frame = 0  # base ticks taken so far
 
     @property
     def dt(self) -> float:
-        return 1.0 / self.config.rate_hz
+        """The base tick (s): the step of simulated time one ``step()`` takes."""
+        return 1.0 / self.base_hz
 
     @property
     def stamp(self) -> float:
-        """Simulated time (s) of the next frame ``step()`` returns."""
+        """Simulated time (s) of the tick the next ``step()`` returns frames for."""
         return self.frame * self.dt
 
     @property
     def streams(self) -> list[tuple[str, str]]:
-        """(vehicle, sensor) of every stream, in the order ``step()`` returns frames."""
+        """(vehicle, sensor) of every stream, in the order ``step()`` returns the frames of the
+        streams that are due."""
         return [
             (vehicle_id(v), s.name)
             for v in range(self.config.vehicles)
             for s in self.config.sensors
         ]
 
+    def due(self) -> list[bool]:
+        """Per sensor (config order): does it produce a frame at the next ``step()``?"""
+        return [self.frame % self.ticks_per_frame[s.name] == 0 for s in self.config.sensors]
+
     def step(self) -> list[SensorFrame]:
+        """Advance one base tick: the frames of the sensors due at this tick's stamp, vehicle by
+        vehicle in sensor order; none at a tick where no sensor is due."""
         t = self.stamp
-        world = self._objects.boxes()
-        ids = self._objects.ids.copy()
+        due = self.due()
         out: list[SensorFrame] = []
-        for v, ego in enumerate(self._egos):
-            vehicle_pose = ego.pose(t)
-            for j, sensor in enumerate(self.config.sensors):
-                pose = vehicle_pose @ self._mounts[j]
-                out.append(self._observe(v, sensor, self._detectors[v][j], pose, world, ids, t))
+        if any(due):
+            world = self._objects.boxes()
+            ids = self._objects.ids.copy()
+            for v, ego in enumerate(self._egos):
+                out.extend(self._observe_vehicle(v, ego.pose(t), due, world, ids, t))
         self._objects.step(self.dt)
         self.frame += 1
         return out
 
     def frames(self, n: int) -> Iterator[list[SensorFrame]]:
+        """``step()`` ``n`` times: ``n`` base ticks (``n`` frames of every sensor when all run
+        at the base rate)."""
         for _ in range(n):
             yield self.step()
 
-    def _observe(
-        self,
-        v: int,
-        sensor: SensorSpec,
-        detector: _Detector,
-        pose: F64,
-        world: Boxes,
-        ids: I64,
-        t: float,
-    ) -> SensorFrame:
+    def _view(self, j: int, vehicle_pose: F64, world: Boxes) -> _View:
+        pose = vehicle_pose @ self._mounts[j]
         local_all = transform_boxes(world, np.linalg.inv(pose).astype(np.float64))
-        visible = detector.in_view(local_all)
+        visible = in_view(self.config.sensors[j], local_all)
         local = local_all.take(visible)
-        occluded = occlusion(local)
-        detections = detector.detect(local, ids[visible], occluded)
-        return SensorFrame(
-            vehicle=vehicle_id(v),
-            sensor=sensor.name,
-            seq=self.frame,
-            stamp=t,
-            pose=pose,
-            detections=detections,
-            truth_ids=ids[visible],
-            truth=world.take(visible),
-            truth_ignore=occluded > self.config.truth_ignore_occlusion,
-            truth_occlusion=occluded,
-        )
+        return _View(pose, visible, local, occlusion(local))
+
+    def _observe_vehicle(
+        self, v: int, vehicle_pose: F64, due: list[bool], world: Boxes, ids: I64, t: float
+    ) -> list[SensorFrame]:
+        cfg = self.config
+        views = [self._view(j, vehicle_pose, world) for j in range(len(cfg.sensors))]
+        # The least hidden any in-view sensor sees each object (inf: in view of none).
+        least_hidden = np.full(len(world), np.inf)
+        for view in views:
+            least_hidden[view.visible] = np.minimum(least_hidden[view.visible], view.occluded)
+        seen = np.isfinite(least_hidden)
+        vehicle_ids = ids[seen]
+        vehicle_truth = world.take(seen)
+        vehicle_ignore = least_hidden[seen] > cfg.truth_ignore_occlusion
+        for a in (vehicle_ids, vehicle_truth.params, vehicle_truth.score, vehicle_truth.cls):
+            a.setflags(write=False)
+        if vehicle_truth.velocity is not None:
+            vehicle_truth.velocity.setflags(write=False)
+        vehicle_ignore.setflags(write=False)
+        out: list[SensorFrame] = []
+        for j, sensor in enumerate(cfg.sensors):
+            if not due[j]:
+                continue
+            view = views[j]
+            visible = view.visible
+            detections = self._detectors[v][j].detect(view.local, ids[visible], view.occluded)
+            out.append(
+                SensorFrame(
+                    vehicle=vehicle_id(v),
+                    sensor=sensor.name,
+                    seq=self._seqs[v][j],
+                    stamp=t,
+                    pose=view.pose,
+                    detections=detections,
+                    truth_ids=ids[visible],
+                    truth=world.take(visible),
+                    truth_ignore=view.occluded > cfg.truth_ignore_occlusion,
+                    truth_occlusion=view.occluded,
+                    latency_s=self._latencies[v][j].draw(t),
+                    vehicle_truth_ids=vehicle_ids,
+                    vehicle_truth=vehicle_truth,
+                    vehicle_truth_ignore=vehicle_ignore,
+                )
+            )
+            self._seqs[v][j] += 1
+        return out

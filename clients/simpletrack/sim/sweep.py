@@ -49,7 +49,9 @@ def score(config: TrackerConfig, sim_config: SimConfig, frames: int) -> MotCount
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("--seed", type=int, default=SWEEP_SEED, help=f"default {SWEEP_SEED}")
-    p.add_argument("--frames", type=int, default=200, help="frames per sensor (default 200)")
+    p.add_argument(
+        "--frames", type=int, default=200, help="simulator ticks: frames per sensor (default 200)"
+    )
     args = p.parse_args(argv)
     if args.seed == 0:
         p.error("--seed 0 is the seed the demo reports: choose settings on another one")
