@@ -7,7 +7,12 @@ zenoh, msgpack and numpy: the light install (``pip install simpletrack``).
 """
 
 from simpletrack.client.publisher import Box, DetectionPublisher, Undelivered
-from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
+from simpletrack.client.subscriber import (
+    TrackMessage,
+    TrackSubscriber,
+    VehicleTrackMessage,
+    VehicleTrackSubscriber,
+)
 from simpletrack.session import ZenohOptions
 
 __all__ = [
@@ -16,5 +21,7 @@ __all__ = [
     "TrackMessage",
     "TrackSubscriber",
     "Undelivered",
+    "VehicleTrackMessage",
+    "VehicleTrackSubscriber",
     "ZenohOptions",
 ]

@@ -32,17 +32,26 @@ import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, Self, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from simpletrack.client.exit_hooks import close_before_thread_join
 from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import _close_quietly, check_name, default_options
 from simpletrack.session import ZenohOptions, open_session
-from simpletrack.wire import Rejection, TrackArrays, TrackFrame, decode_track_frame
-from simpletrack.wire.keys import Keys
+from simpletrack.wire import (
+    Rejection,
+    TrackArrays,
+    TrackFrame,
+    VehicleTrackFrame,
+    decode_track_frame,
+    decode_vehicle_track_frame,
+)
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
+from simpletrack.wire.reasons import SensorCondition
 from simpletrack.wire.track_ids import global_id, global_ids
 
 if TYPE_CHECKING:
@@ -120,6 +129,91 @@ class TrackMessage:
         return np.asarray(ids[keep], dtype=np.int64)
 
 
+@dataclass(frozen=True, slots=True)
+class VehicleTrackMessage:
+    """One decoded ``VehicleTrackFrame``: a vehicle's fused track list at ``stamp_ns``
+    (docs/VEHICLES.md, "One object list per vehicle")."""
+
+    key: str
+    frame: VehicleTrackFrame
+    tracks: TrackArrays  # with ``existence`` and ``sensor_stamp_ns`` (N, len(sensors))
+    received_ns: int  # this client's wall clock
+
+    @property
+    def vehicle(self) -> str:
+        return self.frame.vehicle
+
+    @property
+    def sensor(self) -> str:
+        """The stream's name, ``@vehicle`` (the frame that produced it: ``source``)."""
+        return VEHICLE_STREAM
+
+    @property
+    def source(self) -> tuple[str, int]:
+        """(sensor, seq) of the input frame this message answers."""
+        return self.frame.sensor, self.frame.sensor_seq
+
+    @property
+    def seq(self) -> int:
+        """The vehicle stream's message counter."""
+        return self.frame.seq
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.frame.stamp_ns
+
+    @property
+    def latency_s(self) -> float:
+        """Sensor stamp to arrival here; meaningful when the sensors stamp with wall-clock time."""
+        return (self.received_ns - self.frame.stamp_ns) * 1e-9
+
+    @property
+    def sensors(self) -> list[str]:
+        return list(self.frame.sensors)
+
+    @property
+    def sensor_state(self) -> dict[str, SensorCondition]:
+        """Each fused sensor's condition (ok, probation, silent, clock, extrinsic, unseen)."""
+        return dict(zip(self.frame.sensors, self.frame.sensor_state, strict=True))
+
+    @property
+    def existence(self) -> npt.NDArray[np.float64]:
+        assert self.tracks.existence is not None
+        return self.tracks.existence
+
+    def contributors(self, i: int) -> dict[str, int]:
+        """The sensors that updated track i, each with the stamp of its last update."""
+        stamps = self.tracks.sensor_stamp_ns
+        assert stamps is not None
+        return {s: int(t) for s, t in zip(self.frame.sensors, stamps[i].tolist(), strict=True)
+                if t >= 0}  # fmt: skip
+
+    def class_names(self) -> list[str]:
+        return [self.tracks.classes[i] for i in self.tracks.class_index.tolist()]
+
+    def boxes(self, classes: Sequence[str] | None = None) -> Boxes:
+        """As ``TrackMessage.boxes`` (needs the service extra)."""
+        from simpletrack.wire.convert import track_boxes_from_wire
+
+        return track_boxes_from_wire(self.tracks, classes)
+
+    def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
+        ids: np.ndarray[Any, np.dtype[np.int64]] = self.tracks.id.astype(np.int64)
+        if classes is None:
+            return ids
+        keep = np.array([n in classes for n in self.class_names()], dtype=bool)
+        return np.asarray(ids[keep], dtype=np.int64)
+
+    def global_id(self, i: int) -> str:
+        """Track i's fleet-unique id ``<vehicle>/@vehicle/<id>``: the vehicle's object for as
+        long as the track lives, never given to another (schemas/README.md)."""
+        return global_id(self.frame.vehicle, VEHICLE_STREAM, int(self.tracks.id[i]))
+
+    @property
+    def global_ids(self) -> list[str]:
+        return global_ids(self.frame.vehicle, VEHICLE_STREAM, self.tracks.id)
+
+
 def tracks_key(prefix: str = "fleet", vehicle: str = "*", sensor: str = "*") -> str:
     """``<prefix>/<vehicle>/<sensor>/tracks``; ``*`` selects every vehicle or sensor."""
     for kind, value in (("vehicle", vehicle), ("sensor", sensor)):
@@ -128,22 +222,22 @@ def tracks_key(prefix: str = "fleet", vehicle: str = "*", sensor: str = "*") -> 
     return Keys(prefix).tracks(vehicle, sensor)
 
 
-class TrackSubscriber:
-    """Subscribes to tracks by key expression (default: the whole fleet under ``prefix``)."""
+M = TypeVar("M", TrackMessage, VehicleTrackMessage)
+
+
+class _Subscription(Generic[M]):
+    """What both subscribers share: decoding on Zenoh's thread into a bounded buffer, exact
+    repeats (a takeover's at-least-once) dropped, invalid payloads counted and logged."""
 
     def __init__(
         self,
         session: zenoh.Session,
-        *,
-        vehicle: str = "*",
-        sensor: str = "*",
-        prefix: str = "fleet",
-        key_expr: str | None = None,
-        callback: Callable[[TrackMessage], None] | None = None,
-        buffer: int = 1024,
-        on_invalid: Callable[[str, Rejection], None] | None = None,
+        key_expr: str,
+        callback: Callable[[M], None] | None,
+        buffer: int,
+        on_invalid: Callable[[str, Rejection], None] | None,
     ) -> None:
-        self.key_expr = key_expr or tracks_key(prefix, vehicle, sensor)
+        self.key_expr = key_expr
         self.invalid = 0  # payloads on a tracks key that did not decode
         self._invalid_seen = 0  # the same, counted as each arrives (for the log line)
         self._invalid_lock = threading.Lock()
@@ -157,14 +251,14 @@ class TrackSubscriber:
         self._invalid_unlogged = 0
         self._session = session
         self._owns_session = False
-        self._callback = callback
-        self._mailbox: Mailbox[TrackMessage] = Mailbox(buffer)
+        self._callback: Callable[[M], None] | None = callback
+        self._mailbox: Mailbox[M] = Mailbox(buffer)
         self._closed = False
         self._sub = session.declare_subscriber(self.key_expr, self._on_sample)
         close_before_thread_join(self)
 
     @classmethod
-    def connect(cls, *, options: ZenohOptions | None = None, **kwargs: Any) -> TrackSubscriber:
+    def connect(cls, *, options: ZenohOptions | None = None, **kwargs: Any) -> Self:
         """A subscriber with a session of its own (closed by ``close()``). Without options it
         joins a service on this machine: peer mode, connecting to ``tcp/127.0.0.1:7447``."""
         session = open_session(options or default_options())
@@ -176,14 +270,16 @@ class TrackSubscriber:
         sub._owns_session = True
         return sub
 
+    def _decode(self, key: str, payload: bytes, received_ns: int) -> M | Rejection:
+        raise NotImplementedError
+
     def _on_sample(self, sample: zenoh.Sample) -> None:
         received = time.time_ns()
-        decoded = decode_track_frame(sample.payload.to_bytes())
-        if isinstance(decoded, Rejection):
-            self._invalid(str(sample.key_expr), decoded)
-            return
         key = str(sample.key_expr)
-        frame = decoded[0]
+        msg = self._decode(key, sample.payload.to_bytes(), received)
+        if isinstance(msg, Rejection):
+            self._invalid(key, msg)
+            return
         # Samples of two members come on two links' threads: check and record as one step.
         with self._recent_lock:
             recent = self._recent.get(key)
@@ -191,11 +287,10 @@ class TrackSubscriber:
                 if len(self._recent) >= MAX_KEYS:
                     self._recent.clear()
                 recent = self._recent[key] = deque(maxlen=RECENT_FRAMES)
-            if (frame.seq, frame.stamp_ns) in recent:
+            if (msg.seq, msg.stamp_ns) in recent:
                 self.duplicates += 1
                 return
-            recent.append((frame.seq, frame.stamp_ns))
-        msg = TrackMessage(key, frame, decoded[1], received)
+            recent.append((msg.seq, msg.stamp_ns))
         if self._callback is None:
             self._mailbox.put(msg)
             return
@@ -245,20 +340,20 @@ class TrackSubscriber:
         """Frames pushed out of the full buffer before anyone took them."""
         return self._mailbox.dropped
 
-    def recv(self, timeout: float | None = None) -> TrackMessage | None:
+    def recv(self, timeout: float | None = None) -> M | None:
         """The next frame; None on timeout or once closed and drained."""
         return self._mailbox.get(timeout)
 
-    def try_recv(self) -> TrackMessage | None:
+    def try_recv(self) -> M | None:
         return self._mailbox.get_nowait()
 
-    def __iter__(self) -> Iterator[TrackMessage]:
+    def __iter__(self) -> Iterator[M]:
         return iter(self._mailbox)
 
-    def __aiter__(self) -> AsyncIterator[TrackMessage]:
+    def __aiter__(self) -> AsyncIterator[M]:
         return self._mailbox.__aiter__()
 
-    async def recv_async(self) -> TrackMessage | None:
+    async def recv_async(self) -> M | None:
         return await self._mailbox.get_async()
 
     # ----------------------------------------------------------------- shutdown
@@ -274,14 +369,74 @@ class TrackSubscriber:
             with contextlib.suppress(Exception):  # already gone with its session
                 self._sub.undeclare()  # type: ignore[no-untyped-call]
 
-    def __enter__(self) -> TrackSubscriber:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    async def __aenter__(self) -> TrackSubscriber:
+    async def __aenter__(self) -> Self:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
         self.close()
+
+
+class TrackSubscriber(_Subscription[TrackMessage]):
+    """Subscribes to sensors' tracks by key expression (default: the whole fleet under
+    ``prefix``)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        *,
+        vehicle: str = "*",
+        sensor: str = "*",
+        prefix: str = "fleet",
+        key_expr: str | None = None,
+        callback: Callable[[TrackMessage], None] | None = None,
+        buffer: int = 1024,
+        on_invalid: Callable[[str, Rejection], None] | None = None,
+    ) -> None:
+        key = key_expr or tracks_key(prefix, vehicle, sensor)
+        super().__init__(session, key, callback, buffer, on_invalid)
+
+    def _decode(self, key: str, payload: bytes, received_ns: int) -> TrackMessage | Rejection:
+        decoded = decode_track_frame(payload)
+        if isinstance(decoded, Rejection):
+            return decoded
+        return TrackMessage(key, decoded[0], decoded[1], received_ns)
+
+
+class VehicleTrackSubscriber(_Subscription[VehicleTrackMessage]):
+    """Subscribes to fused vehicles' tracks, ``<prefix>/<vehicle>/@vehicle/tracks`` (every
+    vehicle by default): one track list per vehicle, one id per object.
+
+        with VehicleTrackSubscriber.connect(vehicle="veh01") as sub:
+            for msg in sub:
+                print(msg.seq, msg.global_ids, msg.existence, msg.contributors(0))
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        *,
+        vehicle: str = "*",
+        prefix: str = "fleet",
+        callback: Callable[[VehicleTrackMessage], None] | None = None,
+        buffer: int = 1024,
+        on_invalid: Callable[[str, Rejection], None] | None = None,
+    ) -> None:
+        if vehicle != "*":
+            check_name("vehicle", vehicle)
+        super().__init__(
+            session, Keys(prefix).vehicle_tracks(vehicle), callback, buffer, on_invalid
+        )
+
+    def _decode(
+        self, key: str, payload: bytes, received_ns: int
+    ) -> VehicleTrackMessage | Rejection:
+        decoded = decode_vehicle_track_frame(payload)
+        if isinstance(decoded, Rejection):
+            return decoded
+        return VehicleTrackMessage(key, decoded[0], decoded[1], received_ns)
