@@ -17,6 +17,8 @@ Definitions (per frame, then summed):
 - Ids per object: the distinct track ids each truth object was matched to (non-ignored
   matches), averaged over the truth objects matched at least once; 1.0 is a perfect tracker.
   A truth object forgotten (above) and seen again counts as a new object.
+- Doubled: a non-ignored match whose truth object also has an unmatched track of its class
+  within the gate (the object carries two ids at the same time); counted per frame.
 
 Ids only need to be unique within one scorer: use one scorer per track stream, and add the
 ``MotCounts`` of several scorers for a fleet-wide figure.
@@ -58,6 +60,7 @@ class MotCounts:
     match_quality: float = 0.0  # summed distance (CENTRE) or IoU (IOU_3D) over TPs
     objects: int = 0  # distinct truth objects matched (non-ignored)
     id_links: int = 0  # distinct (truth object, track id) pairs among those matches
+    doubled: int = 0  # matches whose truth object has a second track in the gate
 
     def __add__(self, other: MotCounts) -> MotCounts:
         return MotCounts(
@@ -71,6 +74,7 @@ class MotCounts:
             match_quality=self.match_quality + other.match_quality,
             objects=self.objects + other.objects,
             id_links=self.id_links + other.id_links,
+            doubled=self.doubled + other.doubled,
         )
 
     @property
@@ -87,6 +91,11 @@ class MotCounts:
     @property
     def ids_per_object(self) -> float:
         return self.id_links / self.objects if self.objects else float("nan")
+
+    @property
+    def doubled_share(self) -> float:
+        """Of the matched truth boxes, the share that carried a second track at once."""
+        return self.doubled / self.tp if self.tp else float("nan")
 
     @property
     def recall(self) -> float:
@@ -151,6 +160,11 @@ class MotScorer:
         out.fn = out.gt - out.tp
         out.fp = len(tracks) - rows.shape[0]
         out.match_quality = float(quality[rows[counted], cols[counted]].sum())
+        if cost.size:
+            free = np.ones(len(tracks), dtype=bool)
+            free[cols] = False
+            near_free = (cost[rows[counted]][:, free] < _INVALID).any(axis=1)
+            out.doubled = int(near_free.sum())
         for g, t, c in zip(gids[rows].tolist(), tids[cols].tolist(), counted.tolist(), strict=True):
             memory = self._last.get(g)
             if c and memory is not None and memory.track_id != t:

@@ -6,7 +6,7 @@ timing rules. Typed, validated, frozen; the names and meanings are docs/SERVICE.
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -57,6 +57,11 @@ class SensorTrust(_Frozen):
     )
     min_range_m: Annotated[float, Field(ge=0.0)] = 0.0
     max_range_m: Annotated[float, Field(gt=0.0)] = math.inf
+    classes: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="per class, ClassConfig fields this sensor's frames use instead of the "
+        "tracker's (e.g. a camera's wider gate: {metric: l2, max_distance: 3.0})",
+    )
     verify: bool | None = Field(
         None,
         description="hold its frames out of the tracks until its detections agree with "
@@ -111,6 +116,9 @@ class FusionConfig(_Frozen):
     )
     verify_frames: Annotated[int, Field(ge=1, le=1000)] = Field(
         3, description="frames of agreement a sensor under verification needs"
+    )
+    min_existence: Probability = Field(
+        0.0, description="a track is reported only while its existence probability is this high"
     )
 
     @model_validator(mode="after")

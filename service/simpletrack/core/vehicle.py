@@ -46,9 +46,9 @@ import numpy.typing as npt
 
 from simpletrack.core import calibration
 from simpletrack.core.boxes import Boxes, transform_boxes
-from simpletrack.core.config import MotionModel, OutputPolicy, TrackerConfig
+from simpletrack.core.config import ClassConfig, MotionModel, OutputPolicy, TrackerConfig
 from simpletrack.core.frames import POS_VEL, Frame, Tracks
-from simpletrack.core.fusion_config import EXISTENCE_FLOOR, FusionConfig
+from simpletrack.core.fusion_config import EXISTENCE_FLOOR, FusionConfig, SensorTrust
 from simpletrack.core.kalman_kernels import predict_all
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import KalmanFilter, predicted_boxes
@@ -168,6 +168,7 @@ class SensorRecord:
     offset_m: tuple[float, float] | None = None
     delta_s: float | None = None
     source: str = ""  # what set a CLOCK or EXTRINSIC condition: lead, late or monitor
+    transform: F64 | None = None  # its last frame's sensor -> tracking transform (its view)
 
     def copy(self) -> SensorRecord:
         return replace(self)
@@ -211,7 +212,13 @@ class VehicleTracker:
         self._index = {name: i for i, name in enumerate(self.sensors)}
         # The inner tracker reports every live track; the output policy is applied here,
         # where a track's freshness counts every sensor (docs/SERVICE.md).
-        self.tracker = Tracker(config.with_overrides(output=OutputPolicy.NUSCENES))
+        inner = config.with_overrides(output=OutputPolicy.NUSCENES)
+        self.tracker = Tracker(inner)
+        # A sensor with class overrides steps through a tracker of its own configuration;
+        # the state (tracks, counters, ids) is the vehicle's one tracker's, lent for the step.
+        self._steppers = {
+            s: _with_classes(inner, t.classes) for s, t in fusion.sensors.items() if t.classes
+        }
         self._kf = KalmanFilter(config.kalman)
         classes = config.class_names
         self._coast = np.array([config.for_code(c).coast_output for c in range(len(classes))])
@@ -359,6 +366,7 @@ class VehicleTracker:
         rec.condition, rec.detail = cond, detail
         rec.last_seq, rec.last_stamp_ns = inp.seq, max(rec.last_stamp_ns or 0, inp.stamp_ns)
         rec.too_old = 0
+        rec.transform = inp.transform
         no_births = _Births(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 7)))
         if cond.kept_out:
             rec.kept_out += 1
@@ -393,21 +401,37 @@ class VehicleTracker:
         return b if keep.all() else b.take(np.flatnonzero(keep))
 
     def _in_view(self, inp: SensorInput, t: float) -> Bool:
-        """Tracks predicted inside the sensor's field of view (plus the margin)."""
+        """The tracks this frame takes part for: those predicted inside the sensor's field
+        of view (plus the margin), and those no other sensor that can help sees (a track
+        that left every view ages on every frame, as it would with one sensor)."""
         tr = self.tracker.tracks
-        trust = self.fusion.sensors[inp.sensor]
-        full = trust.fov_deg >= 360.0 and trust.min_range_m == 0 and math.isinf(trust.max_range_m)
-        if full or len(tr) == 0:
+        if len(tr) == 0:
+            return np.ones(0, dtype=bool)
+        if all(_full(t) for t in self.fusion.sensors.values()):
             return np.ones(len(tr), dtype=bool)
-        xy = tr.x[:, :3] + np.pad(tr.x[:, 7:9] * (t - tr.t_update)[:, None], ((0, 0), (0, 1)))
-        if inp.transform is not None:
-            inv = np.linalg.inv(inp.transform)
-            xy = xy @ inv[:3, :3].T + inv[:3, 3]
-        r = np.hypot(xy[:, 0], xy[:, 1])
+        xyz = tr.x[:, :3].copy()
+        xyz[:, :2] += tr.x[:, 7:9] * (t - tr.t_update)[:, None]
+        view = self._view(inp.sensor, inp.transform, xyz)
+        seen_by_other = np.zeros(len(tr), dtype=bool)
+        for name, rec in self.records.items():
+            if name != inp.sensor and rec.condition is Condition.OK:
+                seen_by_other |= self._view(name, rec.transform, xyz)
+        return np.asarray(view | ~seen_by_other, dtype=bool)
+
+    def _view(self, sensor: str, transform: F64 | None, xyz: F64) -> Bool:
+        """Points (tracking frame) inside ``sensor``'s view plus the margin, placed by its
+        sensor -> tracking transform (None: the sensor frame is the tracking frame)."""
+        trust = self.fusion.sensors[sensor]
+        if _full(trust):
+            return np.ones(xyz.shape[0], dtype=bool)
+        if transform is not None:
+            inv = np.linalg.inv(transform)
+            xyz = xyz @ inv[:3, :3].T + inv[:3, 3]
+        r = np.hypot(xyz[:, 0], xyz[:, 1])
         margin = self.fusion.fov_margin_m
         ok = (r >= trust.min_range_m - margin) & (r <= trust.max_range_m + margin)
         if trust.fov_deg < 360.0:
-            bearing = np.abs(np.arctan2(xy[:, 1], xy[:, 0]))
+            bearing = np.abs(np.arctan2(xyz[:, 1], xyz[:, 0]))
             half = math.radians(trust.fov_deg) / 2 + np.arctan2(margin, np.maximum(r, 1e-6))
             ok &= bearing <= half
         return np.asarray(ok, dtype=bool)
@@ -427,7 +451,13 @@ class VehicleTracker:
         frame = Frame(
             boxes, t, pose=inp.transform, key_frame=inp.key_frame, after_gap=inp.after_gap
         )
-        out = tracker.step(frame, r=self._r[inp.sensor])
+        stepper = self._steppers.get(inp.sensor)
+        if stepper is None:
+            out = tracker.step(frame, r=self._r[inp.sensor])
+        else:
+            _lend(tracker, stepper)
+            out = stepper.step(frame, r=self._r[inp.sensor])
+            _lend(stepper, tracker)
         new = tracker.tracks
         born = new.ids >= first_new
         keep_born = self._spawn[inp.sensor][new.cls] | ~born
@@ -539,6 +569,8 @@ class VehicleTracker:
         else:
             keep = confirmed & fresh
         keep |= coast
+        if self.fusion.min_existence > 0:
+            keep &= cols.log_odds >= _logit(self.fusion.min_existence)
         rows = np.flatnonzero(keep)
         kalman = self.config.motion is MotionModel.KALMAN
         box = np.empty((n, 7))
@@ -700,6 +732,31 @@ class VehicleTracker:
 
 
 # ---------------------------------------------------------------------------- helpers
+def _with_classes(config: TrackerConfig, changes: dict[str, dict[str, Any]]) -> Tracker:
+    classes = dict(config.classes)
+    for name, fields in changes.items():
+        if name not in classes:
+            raise ValueError(f"class {name!r} is not one of {', '.join(classes)}")
+        classes[name] = ClassConfig.model_validate({**classes[name].model_dump(), **fields})
+    return Tracker(config.with_overrides(classes=classes))
+
+
+def _lend(source: Tracker, target: Tracker) -> None:
+    """Move the tracker state (tracks, frame counter, ids, last stamp) over."""
+    target.tracks, target.frame_count = source.tracks, source.frame_count
+    target.next_id, target.last_stamp = source.next_id, source.last_stamp
+
+
+def _full(trust: SensorTrust) -> bool:
+    """The sensor sees everywhere."""
+    return trust.fov_deg >= 360.0 and trust.min_range_m == 0 and math.isinf(trust.max_range_m)
+
+
+def _logit(p: float) -> float:
+    p = min(max(p, EXISTENCE_FLOOR), 1 - EXISTENCE_FLOOR)
+    return math.log(p / (1 - p))
+
+
 def _counter_in(misses: I32, s: int) -> I32:
     """The time_since_update the step starts from for sensor ``s``, such that its own
     ``+ 1`` for a track ``s`` misses gives the track's counter after the miss: the least
@@ -800,6 +857,7 @@ def _record_obj(r: SensorRecord) -> dict[str, Any]:
         "last_stamp_ns": r.last_stamp_ns, "frames": r.frames, "kept_out": r.kept_out,
         "agreed": r.agreed, "too_old": r.too_old, "source": r.source,
         "votes": _arr(m.votes), "normal": _arr(m.normal), "rhs": _arr(m.rhs),
+        "transform": None if r.transform is None else _arr(r.transform),
     }  # fmt: skip
 
 
@@ -814,6 +872,7 @@ def _record_of(o: dict[str, Any]) -> SensorRecord:
         agreed=int(o["agreed"]),
         too_old=int(o["too_old"]),
         source=str(o["source"]),
+        transform=None if o["transform"] is None else _unarr(o["transform"]),
         monitor=calibration.MonitorState(_unarr(o["votes"]), _unarr(o["normal"]), _unarr(o["rhs"])),
     )
 
