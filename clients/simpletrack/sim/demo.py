@@ -1,11 +1,16 @@
 """The live demo: the tracking service and a simulated fleet on one machine, no router and no
 data files, with the planner-side view scored against the simulator's ground truth.
 
+Every vehicle has a 360-degree lidar at 10 Hz and a front camera at 15 Hz that sees farther,
+noisier and later (``fusion_sensors``); the service fuses them into one track list per
+vehicle and also publishes each sensor's own tracks, so that both are scored on the same
+frames against the vehicle's truth (``vehicle_score``).
+
 Frames are paced in real time: a frame of the simulator's tick k is stamped ``start + k x dt``
-(plus its stream's phase, below) and sent that long after the start plus the sensor's latency
-(``SensorSpec.latency_s``, none by default), so the latency (stamp to arrival at the planner)
-includes the sensor's and any lag of the demo itself. Tracks come back in the world frame (the
-frames carry the sensor pose) and are scored against the world-frame truth of the same frame.
+(its capture time) and sent that long after the start plus the sensor's latency
+(``SensorSpec.latency_s``), so the latency (stamp to arrival at the planner) includes the
+sensor's and any lag of the demo itself. Tracks come back in the world frame (the frames
+carry the sensor pose).
 """
 
 from __future__ import annotations
@@ -27,27 +32,36 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import DetectionPublisher
-from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
+from simpletrack.client.subscriber import (
+    TrackMessage,
+    TrackSubscriber,
+    VehicleTrackMessage,
+    VehicleTrackSubscriber,
+)
 from simpletrack.core import jit, solvers
-from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_to_json
 from simpletrack.mcap.format import LEAVES
 from simpletrack.mcap.writer import McapRecorder, subscribe
 from simpletrack.session import ZenohOptions, open_session
-from simpletrack.sim.baseline import detections_alone
+from simpletrack.sim.demo_fusion import VehicleCollector
 from simpletrack.sim.demo_stats import FleetStats
 from simpletrack.sim.demo_tracker import DEMO_PRESET as DEMO_PRESET
-from simpletrack.sim.demo_tracker import demo_tracker_config, write_class_overrides
+from simpletrack.sim.demo_tracker import (
+    demo_fusion,
+    demo_tracker_config,
+    write_class_overrides,
+    write_service_config,
+)
+from simpletrack.sim.fusion_sensors import fusion_sensors
 from simpletrack.sim.simulator import FleetSimulator, SensorFrame, SimConfig, vehicle_id
+from simpletrack.sim.vehicle_score import FleetScores
 from simpletrack.spawn import free_port
 from simpletrack.view import Fov, PortInUse, ViewServer, serve_view
 from simpletrack.wire import BoxArrays, FrameError, WireTrackState
-
-TRUTH_HORIZON = 200  # frames of truth kept per stream while waiting for its tracks
+from simpletrack.wire.keys import VEHICLE_STREAM
 
 
 class ServiceMode(StrEnum):
@@ -61,7 +75,7 @@ class ServiceMode(StrEnum):
 
 @dataclass(frozen=True)
 class DemoOptions:
-    sim: SimConfig = field(default_factory=lambda: SimConfig())
+    sim: SimConfig = field(default_factory=lambda: SimConfig(sensors=fusion_sensors()))
     duration: float | None = None  # None: until stopped
     service: ServiceMode = ServiceMode.SUBPROCESS
     listen: str | None = None  # where an in-process/subprocess service listens
@@ -103,11 +117,13 @@ class _Service:
         self._log_file: Any = None
         self._temp_log: Path | None = None  # removed after a clean stop
         self._overrides: Path | None = None  # the demo's tracker settings, removed at stop
+        self._config: Path | None = None  # its fusion settings, removed at stop
 
     def start(self) -> None:
         o = self.options
         if o.service is not ServiceMode.EXTERNAL:
             self._overrides = write_class_overrides()
+            self._config = write_service_config(o.sim)
         if o.service is ServiceMode.INPROCESS:
             from simpletrack.server.app import Service
             from simpletrack.server.settings import load_settings
@@ -123,6 +139,7 @@ class _Service:
                     "zenoh": {"mode": "peer", "listen": [self.endpoint], "connect": []},
                     "metrics_port": o.metrics_port,
                     "state_dir": None,
+                    "fusion": demo_fusion(o.sim),
                 },
             )
             self._inproc = Service(settings)
@@ -140,7 +157,7 @@ class _Service:
                 sys.executable, "-c", "import sys; from simpletrack.cli.main import main; sys.exit(main())",
                 "serve",
                 "--listen", self.endpoint, "--preset", DEMO_PRESET, "--prefix", o.prefix,
-                "--class-overrides", str(self._overrides),
+                "--class-overrides", str(self._overrides), "--config", str(self._config),
                 "--instance", "demo", "--metrics-port", str(o.metrics_port),
                 "--log-level", "warning",
             ]  # fmt: skip
@@ -181,9 +198,10 @@ class _Service:
             self._log_file = None
         if clean and self._temp_log is not None:
             self._temp_log.unlink(missing_ok=True)
-        if self._overrides is not None:
-            self._overrides.unlink(missing_ok=True)
-            self._overrides = None
+        for path in (self._overrides, self._config):
+            if path is not None:
+                path.unlink(missing_ok=True)
+        self._overrides = self._config = None
 
 
 def _quiet_service_logs(path: Path | None) -> None:
@@ -217,26 +235,18 @@ def broken_frame(classes: tuple[str, ...]) -> BoxArrays:
     )
 
 
-@dataclass
-class _Truth:
-    ids: npt.NDArray[np.int64]
-    boxes: Boxes
-    ignore: npt.NDArray[np.bool_]
-    detections: Boxes  # what was sent (sensor frame), for the baseline
-    pose: npt.NDArray[np.float64]
-
-
 class FleetDemo:
     """Runs the demo; ``on_tick(result_so_far)`` is called about 4 times a second."""
 
     def __init__(self, options: DemoOptions) -> None:
         self.options = options
-        self.stats = FleetStats()
+        sensors = tuple(s.name for s in options.sim.sensors)
+        self.stats = FleetStats(FleetScores(sensors))
         self.stop_event = threading.Event()
-        self._truth: dict[tuple[str, str], dict[int, _Truth]] = {}
         self._errors: Mailbox[FrameError] = Mailbox(100_000)
         self.tracker_config = demo_tracker_config()
         self.class_names = self.tracker_config.class_names
+        self.collector = VehicleCollector(self.stats.scores, self.tracker_config, sensors)
         options.sim.check_tracker_config(self.tracker_config)
         self._rng = np.random.default_rng(options.sim.seed + 1)
         self._tracks_out: JsonlWriter | None = None
@@ -278,6 +288,7 @@ class FleetDemo:
             session = open_session(client)
             sim = FleetSimulator(o.sim)
             sub = TrackSubscriber(session, prefix=o.prefix, buffer=100_000)
+            vsub = VehicleTrackSubscriber(session, prefix=o.prefix, buffer=100_000)
             pubs = {
                 stream: DetectionPublisher(
                     session,
@@ -291,6 +302,8 @@ class FleetDemo:
             }
             for stream in sim.streams:
                 self.stats.stream(*stream)
+            for v in sorted({v for v, _ in sim.streams}):
+                self.stats.stream(v, VEHICLE_STREAM)
             first = next(iter(pubs.values()))
             deadline = time.monotonic() + 20.0
             while not first.wait_for_service(0.2):
@@ -316,10 +329,13 @@ class FleetDemo:
                     recording = subscribe(
                         view_session, o.prefix, [("*", "*")], list(LEAVES), recorder
                     )
-            result.stopped_by = self._loop(sim, pubs, sub, service, result, on_tick)
-            self._drain(sub, o.drain_s)
+            subs = (sub, vsub)
+            result.stopped_by = self._loop(sim, pubs, subs, service, result, on_tick)
+            self._drain(subs, o.drain_s)
             result.unanswered = self._unanswered()
+            self.collector.flush()
             sub.close()
+            vsub.close()
         finally:
             if view is not None:
                 view.close()
@@ -383,20 +399,18 @@ class FleetDemo:
         self,
         sim: FleetSimulator,
         pubs: dict[tuple[str, str], DetectionPublisher],
-        sub: TrackSubscriber,
+        subs: tuple[TrackSubscriber, VehicleTrackSubscriber],
         service: _Service,
         result: DemoResult,
         on_tick: Callable[[DemoResult], None] | None,
     ) -> str:
         o = self.options
         dt = sim.dt
-        # Sensors are not synchronised: stream i sends tick k's frame at (k + i / n) x dt, which
-        # also spreads the service's load over the frame period as a real fleet would.
-        phase = {stream: i / len(pubs) for i, stream in enumerate(sim.streams)}
         # By send time: a sensor's latency can send a frame after later-stamped ones of other
         # sensors (never of its own stream); the counter keeps equal times in step() order.
         pending: list[tuple[float, int, int, SensorFrame]] = []
         order = 0
+        last_send: dict[tuple[str, str], float] = {}  # a stream's frames go in order
         t0 = time.monotonic()
         t0_ns = time.time_ns()
         next_view = t0
@@ -409,18 +423,25 @@ class FleetDemo:
             if o.duration is not None and now - t0 >= o.duration:
                 return "duration"
             if now >= t0 + k * dt:
+                by_vehicle: dict[str, list[SensorFrame]] = {}
                 for f in sim.step():
-                    offset = (k + phase[(f.vehicle, f.sensor)]) * dt
-                    send = t0 + offset + f.latency_s
-                    heapq.heappush(pending, (send, order, t0_ns + round(offset * 1e9), f))
+                    # Stamped at its capture: the vehicle's tracker orders its sensors by it.
+                    stamp_ns = t0_ns + round(f.stamp * 1e9)
+                    stream = (f.vehicle, f.sensor)
+                    send = max(t0 + f.stamp + f.latency_s, last_send.get(stream, -math.inf))
+                    last_send[stream] = send
+                    heapq.heappush(pending, (send, order, stamp_ns, f))
                     order += 1
+                    by_vehicle.setdefault(f.vehicle, []).append(f)
+                for frames in by_vehicle.values():
+                    self.collector.expect(frames, t0_ns + round(frames[0].stamp * 1e9))
                 k += 1
                 result.frames = k
             while pending and pending[0][0] <= now:
                 _, _, stamp_ns, f = heapq.heappop(pending)
                 self._publish(f, pubs[(f.vehicle, f.sensor)], stamp_ns)
             due = min(t0 + k * dt, pending[0][0] if pending else math.inf)
-            self._consume(sub, timeout=min(due - time.monotonic(), 0.05))
+            self._consume(subs, timeout=min(due - time.monotonic(), 0.05))
             if now >= next_view:
                 service.check_alive()
                 if on_tick is not None:
@@ -435,10 +456,6 @@ class FleetDemo:
             )
         else:
             pub.publish(f.detections, stamp_ns=stamp_ns, pose=f.pose, seq=f.seq)
-            pending = self._truth.setdefault(stream, {})
-            pending[f.seq] = _Truth(f.truth_ids, f.truth, f.truth_ignore, f.detections, f.pose)
-            for old in [s for s in pending if s < f.seq - TRUTH_HORIZON]:
-                del pending[old]  # its tracks never came: lost, not leaked
         if self._truth_out is not None:
             self._truth_out.write(
                 truth_to_json(
@@ -453,15 +470,23 @@ class FleetDemo:
             )
         self.stats.stream(*stream).sent += 1
 
-    def _consume(self, sub: TrackSubscriber, timeout: float) -> None:
+    def _consume(
+        self, subs: tuple[TrackSubscriber, VehicleTrackSubscriber], timeout: float
+    ) -> None:
+        sub, vsub = subs
         msg = sub.recv(timeout=max(timeout, 0.0))
         while msg is not None:
             self._score(msg)
             msg = sub.try_recv()
+        vmsg = vsub.try_recv()
+        while vmsg is not None:
+            self._score_vehicle(vmsg)
+            vmsg = vsub.try_recv()
         err = self._errors.get_nowait()
         while err is not None:
             st = self.stats.stream(err.vehicle, err.sensor)
             st.rejected[err.reason.value] += 1
+            self.collector.refused(err)
             err = self._errors.get_nowait()
 
     def _score(self, msg: TrackMessage) -> None:
@@ -470,20 +495,23 @@ class FleetDemo:
         confirmed = int((msg.tracks.state != WireTrackState.TENTATIVE).sum())
         st.on_tracks(time.monotonic(), msg.latency_s, ids, confirmed)
         self.stats.latency.add(msg.latency_s)
-        truth = self._truth.get((msg.vehicle, msg.sensor), {}).pop(msg.seq, None)
-        if truth is not None:
-            st.scorer.update(truth.ids, truth.boxes, ids, msg.boxes(self.class_names), truth.ignore)
-            # The same frame's detections, as if they were the output: what tracking adds.
-            alone = detections_alone(truth.detections, truth.pose, self.tracker_config)
-            st.score_baseline(truth.ids, truth.boxes, alone, truth.ignore)
+        self.collector.sensor_tracks(msg, self.class_names)
         if self._tracks_out is not None:
             self._tracks_out.write(message_to_json(msg.frame, msg.tracks))
+
+    def _score_vehicle(self, msg: VehicleTrackMessage) -> None:
+        st = self.stats.stream(msg.vehicle, VEHICLE_STREAM)
+        ids = msg.tracks.id.astype(np.int64)
+        confirmed = int((msg.tracks.state != WireTrackState.TENTATIVE).sum())
+        st.on_tracks(time.monotonic(), msg.latency_s, ids, confirmed)
+        self.stats.fused_latency.add(msg.latency_s)
+        self.collector.vehicle_tracks(msg, self.class_names)
 
     def _unanswered(self) -> int:
         return max(0, self.stats.sent - self.stats.tracked - sum(self.stats.rejected.values()))
 
-    def _drain(self, sub: TrackSubscriber, seconds: float) -> None:
+    def _drain(self, subs: tuple[TrackSubscriber, VehicleTrackSubscriber], seconds: float) -> None:
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline and self._unanswered() > 0:
-            self._consume(sub, timeout=0.05)
-        self._consume(sub, timeout=0.0)
+            self._consume(subs, timeout=0.05)
+        self._consume(subs, timeout=0.0)

@@ -9,9 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.boxes import Boxes
-from simpletrack.eval.clear_mot import MotCounts, MotScorer
-from simpletrack.sim.baseline import without_identity
+from simpletrack.sim.vehicle_score import FleetScores
+from simpletrack.wire.keys import VEHICLE_STREAM
 
 F64 = npt.NDArray[np.float64]
 
@@ -68,10 +67,11 @@ class StreamStats:
     ids_seen: int = 0
     recent_latency: deque[float] = field(default_factory=lambda: deque(maxlen=200))
     arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=256))
-    scorer: MotScorer = field(default_factory=MotScorer)
-    # The raw detections of the same frames, scored as if they were the output (baseline.py).
-    baseline: MotScorer = field(default_factory=MotScorer)
-    detection_ids: int = 0  # fresh ids handed to the baseline's boxes so far
+
+    @property
+    def fused(self) -> bool:
+        """The vehicle's fused stream (``@vehicle``), not a sensor's."""
+        return self.sensor == VEHICLE_STREAM
 
     def on_tracks(
         self, now: float, latency_s: float, ids: npt.NDArray[np.int64], confirmed: int
@@ -87,13 +87,6 @@ class StreamStats:
         self.recent_latency.append(latency_s)
         self.arrivals.append(now)
 
-    def score_baseline(
-        self, truth_ids: npt.NDArray[np.int64], truth: Boxes, boxes: Boxes, ignore: npt.ArrayLike
-    ) -> None:
-        ids = np.arange(self.detection_ids, self.detection_ids + len(boxes), dtype=np.int64)
-        self.detection_ids += len(boxes)
-        self.baseline.update(truth_ids, truth, ids, boxes, ignore)
-
     def rate(self, now: float, window: float = 2.0) -> float:
         """Track frames per second over the last ``window`` seconds."""
         recent = [t for t in self.arrivals if now - t <= window]
@@ -104,8 +97,13 @@ class StreamStats:
 
 @dataclass
 class FleetStats:
+    """The fleet as planners see it: per stream (each sensor's, each vehicle's fused), and
+    every vehicle's rows scored against its truth (``scores``)."""
+
+    scores: FleetScores
     streams: dict[tuple[str, str], StreamStats] = field(default_factory=dict)
     latency: LatencyHistogram = field(default_factory=LatencyHistogram)
+    fused_latency: LatencyHistogram = field(default_factory=LatencyHistogram)
 
     def stream(self, vehicle: str, sensor: str) -> StreamStats:
         key = (vehicle, sensor)
@@ -119,7 +117,12 @@ class FleetStats:
 
     @property
     def tracked(self) -> int:
-        return sum(s.tracked for s in self.streams.values())
+        """Sensors' frames answered with their own tracks."""
+        return sum(s.tracked for s in self.streams.values() if not s.fused)
+
+    @property
+    def fused_messages(self) -> int:
+        return sum(s.tracked for s in self.streams.values() if s.fused)
 
     @property
     def rejected(self) -> Counter[str]:
@@ -130,22 +133,9 @@ class FleetStats:
 
     @property
     def tracks_now(self) -> int:
-        return sum(s.tracks_now for s in self.streams.values())
+        """Fused tracks held now (each vehicle's one list)."""
+        return sum(s.tracks_now for s in self.streams.values() if s.fused)
 
     @property
     def ids_seen(self) -> int:
-        return sum(s.ids_seen for s in self.streams.values())
-
-    @property
-    def mot(self) -> MotCounts:
-        return sum((s.scorer.counts for s in self.streams.values()), MotCounts())
-
-    @property
-    def baseline_fresh_ids(self) -> MotCounts:
-        """The detections alone, each box its own one-frame id."""
-        return sum((s.baseline.counts for s in self.streams.values()), MotCounts())
-
-    @property
-    def baseline_mot(self) -> MotCounts:
-        """The detections alone, no identity: IDS not counted (see baseline.py)."""
-        return without_identity(self.baseline_fresh_ids)
+        return sum(s.ids_seen for s in self.streams.values() if s.fused)

@@ -10,8 +10,10 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
+from simpletrack.eval.clear_mot import MotCounts
 from simpletrack.sim.demo import DemoOptions, DemoResult, ServiceMode
-from simpletrack.sim.demo_stats import FleetStats, recent_quantile
+from simpletrack.sim.demo_stats import FleetStats, StreamStats, recent_quantile
+from simpletrack.sim.vehicle_score import DETECTIONS, FUSED, TOGETHER
 
 SERVICE_WORDS = {
     ServiceMode.INPROCESS: "in-process",
@@ -57,7 +59,7 @@ def live_view(result: DemoResult, options: DemoOptions) -> Group:
     for st in stats.streams.values():
         rate = st.rate(now)
         rate_total += rate
-        mot = st.scorer.counts
+        mot = _stream_counts(stats, st)
         table.add_row(
             st.vehicle,
             st.sensor,
@@ -70,11 +72,11 @@ def live_view(result: DemoResult, options: DemoOptions) -> Group:
             _mota(mot.mota),
             f"{mot.ids}",
         )
-    mot = stats.mot
+    mot = stats.scores.counts(FUSED)
     table.add_section()
     table.add_row(
         "fleet",
-        f"{len(stats.streams)} streams",
+        "fused",
         f"{stats.tracked}/{stats.sent}",
         f"{rate_total:.1f}",
         _ms(stats.latency.quantile(0.5)),
@@ -86,8 +88,9 @@ def live_view(result: DemoResult, options: DemoOptions) -> Group:
         style="bold",
     )
     note = Text(
-        "latency: sensor stamp -> planner; MOTA/IDS: tracks vs the simulator's truth "
-        "(same class, centre within 2 m, Hungarian per frame)",
+        "latency: sensor stamp -> planner; MOTA/IDS: each stream against its vehicle's truth "
+        "(every object in view of any of its sensors; same class, centre within 2 m, "
+        "Hungarian per frame; at the stamps where every sensor has a frame)",
         style="dim",
     )
     if result.view_url:
@@ -100,38 +103,75 @@ def _count(value: float, digits: int = 2) -> str:
     return "-" if math.isnan(value) else f"{value:.{digits}f}"
 
 
+def _stream_counts(stats: FleetStats, st: StreamStats) -> MotCounts:
+    """A stream's row of its vehicle (fused, or that sensor's own tracks)."""
+    vehicle = stats.scores.vehicles.get(st.vehicle)
+    if vehicle is None:
+        return MotCounts()
+    return vehicle.counts(FUSED if st.fused else st.sensor)
+
+
+ROW_NAMES = {
+    FUSED: "fused tracks",
+    TOGETHER: "per-sensor together",
+    DETECTIONS: "detections alone",
+}
+
+
 def comparison_lines(stats: FleetStats) -> list[str]:
-    """The tracks next to the raw detections of the same frames (what tracking adds)."""
-    rows = (("tracks", stats.mot, True), ("detections alone", stats.baseline_mot, False))
+    """Every row against the vehicles' truth, on the same frames (sim/vehicle_score.py)."""
+    scores = stats.scores
     lines = [
-        f"  scoring   {'':18}{'MOTA':>7}{'MOTP m':>8}{'FP':>7}{'FN':>7}{'IDS':>7}{'ids/object':>12}"
+        f"  scoring   {'':22}{'MOTA':>7}{'MOTP m':>8}{'FP':>7}{'FN':>7}{'IDS':>7}"
+        f"{'ids/object':>12}{'doubled':>9}"
     ]
-    for name, m, has_ids in rows:
+    for row in scores.rows:
+        m = scores.counts(row)
+        has_ids = row != DETECTIONS
+        name = ROW_NAMES.get(row, f"{row} alone")
         lines.append(
-            f"            {name:18}{_mota(m.mota):>7}{_mota(m.motp):>8}{m.fp:>7}{m.fn:>7}"
+            f"            {name:22}{_mota(m.mota):>7}{_mota(m.motp):>8}{m.fp:>7}{m.fn:>7}"
             f"{m.ids if has_ids else '-':>7}{_count(m.ids_per_object) if has_ids else '-':>12}"
+            f"{_pct(m.doubled_share) if has_ids else '-':>9}"
         )
     lines.append(
-        "            detections alone: boxes scoring >= the preset's score_high after NMS, "
-        "no ids (a new one every frame), so IDS is not counted"
+        "            truth: every object in view of any of the vehicle's sensors; per-sensor "
+        "together: each sensor's tracks, ids kept apart by sensor; detections alone: boxes "
+        ">= the preset's score_high after NMS, no ids; doubled: matched truth boxes with a "
+        "second track of theirs within 2 m"
     )
+    calibration = scores.calibration()
+    if calibration:
+        cells = ", ".join(f"{lo:.1f}+: {share:.2f} ({n})" for lo, n, share in calibration)
+        lines.append(
+            f"  existence share of fused tracks that are real, by reported existence: {cells}"
+        )
     return lines
 
 
+def _pct(value: float) -> str:
+    return "-" if math.isnan(value) else f"{value:.1%}"
+
+
 def final_line(result: DemoResult) -> str:
-    """The one line to read: frames, latency, MOTA against the baseline, identity."""
+    """The one line to read: frames, latency, the fused tracks against the per-sensor ones."""
     stats = result.stats
-    mot, alone = stats.mot, stats.baseline_mot
+    scores = stats.scores
+    fused, together = scores.counts(FUSED), scores.counts(TOGETHER)
+    singles = " ".join(f"{s} {_count(scores.counts(s).mota)}" for s in scores.sensors)
     return (
-        f"tracked {stats.tracked}/{stats.sent} frames · p50 {_ms(stats.latency.quantile(0.5))} ms "
-        f"p99 {_ms(stats.latency.quantile(0.99))} ms · MOTA {_count(mot.mota)} (detections alone "
-        f"{_count(alone.mota)}) · IDS {mot.ids} · {_count(mot.ids_per_object, 1)} ids per object"
+        f"tracked {stats.tracked}/{stats.sent} frames · fused p50 "
+        f"{_ms(stats.fused_latency.quantile(0.5))} ms p99 {_ms(stats.fused_latency.quantile(0.99))} ms "
+        f"· MOTA fused {_count(fused.mota)} (per-sensor together {_count(together.mota)}, "
+        f"{singles}, detections {_count(scores.counts(DETECTIONS).mota)}) · "
+        f"{_count(fused.ids_per_object)} ids per object (together "
+        f"{_count(together.ids_per_object)})"
     )
 
 
 def summary_lines(result: DemoResult, options: DemoOptions) -> list[str]:
     stats: FleetStats = result.stats
-    mot = stats.mot
+    mot = stats.scores.counts(FUSED)
     sim = options.sim
     rejected = stats.rejected
     per_sensor = stats.tracked / max(len(stats.streams), 1) / max(result.elapsed, 1e-9)
@@ -145,12 +185,17 @@ def summary_lines(result: DemoResult, options: DemoOptions) -> list[str]:
         f"{result.unanswered} unanswered",
         f"  rate      {stats.tracked / max(result.elapsed, 1e-9):.1f} track frames/s "
         f"({per_sensor:.1f} per sensor)",
-        f"  latency   p50 {_ms(stats.latency.quantile(0.5))} ms, "
-        f"p99 {_ms(stats.latency.quantile(0.99))} ms (sensor stamp -> planner, {stats.latency.n} frames)",
-        f"  tracks    {stats.tracks_now} active at the end, {stats.ids_seen} track ids seen",
-        f"  MOTA      {_mota(mot.mota)}  IDS {mot.ids}, FP {mot.fp}, FN {mot.fn}, "
+        f"  latency   fused p50 {_ms(stats.fused_latency.quantile(0.5))} ms, "
+        f"p99 {_ms(stats.fused_latency.quantile(0.99))} ms ({stats.fused_latency.n} messages); "
+        f"per sensor p50 {_ms(stats.latency.quantile(0.5))} ms, "
+        f"p99 {_ms(stats.latency.quantile(0.99))} ms ({stats.latency.n} frames; sensor stamp "
+        f"-> planner)",
+        f"  tracks    {stats.tracks_now} fused tracks active at the end, {stats.ids_seen} fused "
+        f"track ids seen, {stats.fused_messages} fused messages",
+        f"  MOTA      fused {_mota(mot.mota)}  IDS {mot.ids}, FP {mot.fp}, FN {mot.fn}, "
         f"TP {mot.tp} of {mot.gt} truth boxes (recall {_mota(mot.recall)}, "
-        f"precision {_mota(mot.precision)})",
+        f"precision {_mota(mot.precision)}), {mot.frames // max(len(stats.scores.vehicles), 1)} "
+        f"scoring stamps per vehicle",
         *comparison_lines(stats),
         final_line(result),
     ]
@@ -159,11 +204,26 @@ def summary_lines(result: DemoResult, options: DemoOptions) -> list[str]:
 
 def summary_json(result: DemoResult, options: DemoOptions) -> dict[str, Any]:
     stats = result.stats
-    mot = stats.mot
-    alone = stats.baseline_mot
+    scores = stats.scores
 
     def num(v: float) -> float | None:
         return None if math.isnan(v) else round(v, 6)
+
+    def row(m: MotCounts) -> dict[str, Any]:
+        return {
+            "mota": num(m.mota),
+            "motp_m": num(m.motp),
+            "ids": m.ids,
+            "fp": m.fp,
+            "fn": m.fn,
+            "tp": m.tp,
+            "gt": m.gt,
+            "recall": num(m.recall),
+            "precision": num(m.precision),
+            "ids_per_object": num(m.ids_per_object),
+            "doubled_share": num(m.doubled_share),
+            "frames": m.frames,
+        }
 
     return {
         "stopped_by": result.stopped_by,
@@ -175,43 +235,30 @@ def summary_json(result: DemoResult, options: DemoOptions) -> dict[str, Any]:
         "frames": {
             "published": stats.sent,
             "tracked": stats.tracked,
+            "fused_messages": stats.fused_messages,
             "rejected": dict(stats.rejected),
             "unanswered": result.unanswered,
         },
         "latency_ms": {
             "p50": num(stats.latency.quantile(0.5) * 1e3),
             "p99": num(stats.latency.quantile(0.99) * 1e3),
+            "fused_p50": num(stats.fused_latency.quantile(0.5) * 1e3),
+            "fused_p99": num(stats.fused_latency.quantile(0.99) * 1e3),
         },
         "tracks": {"active": stats.tracks_now, "ids_seen": stats.ids_seen},
-        "mot": {
-            "mota": num(mot.mota),
-            "ids": mot.ids,
-            "fp": mot.fp,
-            "fn": mot.fn,
-            "tp": mot.tp,
-            "gt": mot.gt,
-            "recall": num(mot.recall),
-            "precision": num(mot.precision),
-            "motp_m": num(mot.motp),
-            "ids_per_object": num(mot.ids_per_object),
-        },
-        "detections_alone": {
-            "mota": num(alone.mota),
-            "mota_fresh_ids": num(stats.baseline_fresh_ids.mota),
-            "motp_m": num(alone.motp),
-            "fp": alone.fp,
-            "fn": alone.fn,
-            "tp": alone.tp,
-            "gt": alone.gt,
-        },
+        "rows": {name: row(scores.counts(name)) for name in scores.rows},
+        "existence_calibration": [
+            {"from": lo, "tracks": n, "real": round(share, 4)}
+            for lo, n, share in scores.calibration()
+        ],
         "summary": final_line(result),
         "streams": {
             f"{v}/{s}": {
                 "published": st.sent,
                 "tracked": st.tracked,
                 "rejected": sum(st.rejected.values()),
-                "mota": num(st.scorer.counts.mota),
-                "ids": st.scorer.counts.ids,
+                "mota": num(_stream_counts(stats, st).mota),
+                "ids": _stream_counts(stats, st).ids,
             }
             for (v, s), st in stats.streams.items()
         },

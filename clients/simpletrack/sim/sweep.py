@@ -55,18 +55,26 @@ def score(config: TrackerConfig, sim_config: SimConfig, frames: int) -> MotCount
 # The fused tracker's own knobs (the per-sensor trackers keep DEMO_CLASS_CHANGES). The
 # detection probabilities are the sensor models' documented recalls (fusion_sensors.py), not
 # swept: they say what a miss means.
-FUSION_GRID = {
-    "max_age": (4, 8, 12),
+FUSION_GRID: dict[str, tuple[object, ...]] = {
+    "max_age": (6, 8, 12),
     "camera_spawn": (True, False),
-    "camera_gate": ("giou", "l2_2.5", "l2_3.5"),
+    "camera_gate": ("giou", "l2_2.5"),
     "camera_r": (4.0, 16.0),
-    "min_existence": (0.0, 0.5),
+    "spawn_clearance_m": (0.0, 5.0),
+    "min_existence": (0.0, 0.65),
+    "occlusion": (0.0, 0.5),
 }
 LIDAR_DETECTION, CAMERA_DETECTION = 0.73, 0.59
 
 
 def fusion_candidate(
-    max_age: int, camera_spawn: bool, camera_gate: str, camera_r: float, min_existence: float
+    max_age: int,
+    camera_spawn: bool,
+    camera_gate: str,
+    camera_r: float,
+    spawn_clearance_m: float,
+    min_existence: float,
+    occlusion: float,
 ) -> tuple[dict[str, dict[str, object]], dict[str, object]]:
     """(per-sensor trust, vehicle options) of one candidate."""
     life = {c: {"max_age": max_age} for c in CLASSES}
@@ -79,13 +87,14 @@ def fusion_candidate(
         "camera": {
             "classes": gate,
             "spawn": camera_spawn,
+            "spawn_clearance_m": spawn_clearance_m,
             "r": camera_r,
             "existence": False,
             "hit_probability": 0.6,
             "detection_probability": CAMERA_DETECTION,
         },
     }
-    return trust, {"min_existence": min_existence}
+    return trust, {"min_existence": min_existence, "occlusion": occlusion}
 
 
 def sweep_fusion(seed: int, ticks: int) -> None:

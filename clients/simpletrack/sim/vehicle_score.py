@@ -29,6 +29,9 @@ F64 = npt.NDArray[np.float64]
 FUSED, TOGETHER, DETECTIONS = "fused", "together", "detections"
 _SENSOR_ID_SPAN = 1 << 40  # sensor j's track ids + j * span: one id space for "together"
 CALIBRATION_BINS = 10
+# Scoring stamps (5 Hz) an object may be out of every view and still be the same object
+# when it comes back: longer, and no tracker without re-identification could have kept it.
+FORGET_AFTER = 10
 
 
 @dataclass
@@ -72,7 +75,7 @@ class VehicleScores:
 
     def __post_init__(self) -> None:
         for row in (FUSED, TOGETHER, *self.sensors, DETECTIONS):
-            self.scorers.setdefault(row, MotScorer())
+            self.scorers.setdefault(row, MotScorer(forget_after=FORGET_AFTER))
 
     def score(self, s: Stamp) -> None:
         """Score one complete stamp (every sensor's tracks in, the fused tracks final)."""

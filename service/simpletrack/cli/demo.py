@@ -104,6 +104,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 def _options(args: argparse.Namespace) -> object:
     from simpletrack.sim.demo import DemoOptions, ServiceMode
+    from simpletrack.sim.fusion_sensors import fusion_sensors
     from simpletrack.sim.simulator import SimConfig
 
     if args.duration is not None and args.duration <= 0:
@@ -118,7 +119,11 @@ def _options(args: argparse.Namespace) -> object:
         raise UserError(f"--mcap {args.mcap}: no folder {args.mcap.parent}")
     try:
         sim = SimConfig(
-            seed=args.seed, vehicles=args.vehicles, objects=args.objects, rate_hz=args.rate
+            seed=args.seed,
+            vehicles=args.vehicles,
+            objects=args.objects,
+            rate_hz=args.rate,
+            sensors=fusion_sensors(),
         )
     except ValidationError as exc:
         first = exc.errors(include_url=False)[0]
@@ -198,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
             st = result.stats
             print(
                 f"demo: {result.elapsed:.0f} s, {st.tracked}/{st.sent} frames tracked, "
-                f"{st.tracks_now} tracks, MOTA {st.mot.mota:.3f}",
+                f"{st.tracks_now} fused tracks, fused MOTA {st.scores.counts('fused').mota:.3f}",
                 flush=True,
             )
 

@@ -29,6 +29,12 @@ class SensorTrust(_Frozen):
     spawn_classes: tuple[str, ...] | None = Field(
         None, description="classes it may start (None: every class, when spawn is true)"
     )
+    spawn_clearance_m: Annotated[float, Field(ge=0.0)] = Field(
+        0.0,
+        description="it starts no track within this distance (BEV, metres) of a track of the "
+        "same class that its frame did not update: a noisy sensor's second box of an object "
+        "is not a second object (0: off)",
+    )
     existence: bool = Field(
         True,
         description="its scores count as evidence toward a track's existence probability "
@@ -117,8 +123,19 @@ class FusionConfig(_Frozen):
     verify_frames: Annotated[int, Field(ge=1, le=1000)] = Field(
         3, description="frames of agreement a sensor under verification needs"
     )
+    occlusion: Probability = Field(
+        0.0,
+        description="a track hidden behind nearer tracks, seen from a sensor, by more than "
+        "this share of its outline is not missed by that sensor's frame (0: off; the sensors "
+        "are line of sight)",
+    )
+    occluded_max_frames: Annotated[int, Field(ge=0, le=10_000)] = Field(
+        30, description="frames a track may go unmissed for being hidden, then it ages again"
+    )
     min_existence: Probability = Field(
-        0.0, description="a track is reported only while its existence probability is this high"
+        0.0,
+        description="a tentative track is reported only once its existence probability is "
+        "this high (a confirmed one as the output policy says)",
     )
 
     @model_validator(mode="after")

@@ -52,6 +52,7 @@ from simpletrack.core.fusion_config import EXISTENCE_FLOOR, FusionConfig, Sensor
 from simpletrack.core.kalman_kernels import predict_all
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import KalmanFilter, predicted_boxes
+from simpletrack.core.occlusion import occlusion
 from simpletrack.core.state import TrackTable, pack, unpack
 from simpletrack.core.tracker import Tracker
 
@@ -137,6 +138,7 @@ class FusedColumns:
     stamp_ns: I64  # (n, S) each sensor's last update of the track; -1: never
     last_kind: I8  # UpdateKind of the latest update by any sensor
     log_odds: F64  # existence, as log odds
+    occluded: I32  # consecutive frames not missed for being hidden
 
     @classmethod
     def empty(cls, sensors: int) -> FusedColumns:
@@ -145,11 +147,15 @@ class FusedColumns:
             np.zeros((0, sensors), dtype=np.int64),
             np.zeros(0, dtype=np.int8),
             np.zeros(0),
+            np.zeros(0, dtype=np.int32),
         )
 
     def take(self, rows: npt.ArrayLike) -> FusedColumns:
         r = np.asarray(rows)
-        return FusedColumns(self.misses[r], self.stamp_ns[r], self.last_kind[r], self.log_odds[r])
+        return FusedColumns(
+            self.misses[r], self.stamp_ns[r], self.last_kind[r], self.log_odds[r],
+            self.occluded[r],
+        )  # fmt: skip
 
 
 @dataclass
@@ -229,6 +235,7 @@ class VehicleTracker:
                          for c in classes])
             for s, t in fusion.sensors.items()
         }  # fmt: skip
+        self._clearance = {s: t.spawn_clearance_m for s, t in fusion.sensors.items()}
         self.cols = FusedColumns.empty(len(self.sensors))
         self.origin_ns: int | None = None
         self.last_ns: int | None = None
@@ -418,6 +425,23 @@ class VehicleTracker:
                 seen_by_other |= self._view(name, rec.transform, xyz)
         return np.asarray(view | ~seen_by_other, dtype=bool)
 
+    def _hidden(self, sub: TrackTable, cols: FusedColumns, inp: SensorInput, t: float) -> Bool:
+        """Tracks in view that nearer ones hide from the sensor (``occlusion``), for at most
+        ``occluded_max_frames`` frames in a row."""
+        limit = self.fusion.occlusion
+        n = len(sub)
+        if limit <= 0 or n < 2:
+            return np.zeros(n, dtype=bool)
+        xyz = sub.x[:, :3].copy()
+        xyz[:, :2] += sub.x[:, 7:9] * (t - sub.t_update)[:, None]
+        yaw = sub.x[:, 3].copy()
+        if inp.transform is not None:
+            inv = np.linalg.inv(inp.transform)
+            xyz = xyz @ inv[:3, :3].T + inv[:3, 3]
+            yaw = yaw + math.atan2(inv[1, 0], inv[0, 0])
+        hidden = occlusion(xyz[:, :2], yaw, sub.x[:, 4], sub.x[:, 5]) > limit
+        return np.asarray(hidden & (cols.occluded < self.fusion.occluded_max_frames), dtype=bool)
+
     def _view(self, sensor: str, transform: F64 | None, xyz: F64) -> Bool:
         """Points (tracking frame) inside ``sensor``'s view plus the margin, placed by its
         sensor -> tracking transform (None: the sensor frame is the tracking frame)."""
@@ -446,7 +470,11 @@ class VehicleTracker:
         view = self._in_view(inp, t)
         iv, ov = np.flatnonzero(view), np.flatnonzero(~view)
         sub, sub_cols = (table, cols) if ov.size == 0 else (table.take(iv), cols.take(iv))
-        tracker.tracks = replace(sub, time_since_update=_counter_in(sub_cols.misses, s))
+        counter = _counter_in(sub_cols.misses, s)
+        hidden = self._hidden(sub, sub_cols, inp, t)
+        if hidden.any():  # its own "+ 1" leaves a hidden track's counter where it was
+            counter = np.where(hidden, sub.time_since_update - 1, counter).astype(np.int32)
+        tracker.tracks = replace(sub, time_since_update=counter)
         first_new = tracker.next_id
         frame = Frame(
             boxes, t, pose=inp.transform, key_frame=inp.key_frame, after_gap=inp.after_gap
@@ -461,6 +489,9 @@ class VehicleTracker:
         new = tracker.tracks
         born = new.ids >= first_new
         keep_born = self._spawn[inp.sensor][new.cls] | ~born
+        clearance = self._clearance[inp.sensor]
+        if clearance > 0 and born.any():
+            keep_born &= ~born | ~_crowded(new, born, out, table, clearance)
         if not keep_born.all():
             new, out = _without(new, out, keep_born)
             born = new.ids >= first_new
@@ -469,7 +500,7 @@ class VehicleTracker:
             out = replace(out, ids=_map_ids(out.ids, new.ids, new_ids))
             new = replace(new, ids=new_ids)
         tracker.next_id = max(first_new, int(births.ids.max(initial=first_new - 1)) + 1)
-        new_cols = self._columns(sub_cols, sub.ids, new, born, out, s, inp)
+        new_cols = self._columns(sub_cols, sub.ids, new, born, out, s, inp, hidden)
         if ov.size:
             new = new.concat(table.take(ov))
             new_cols = _concat(new_cols, cols.take(ov))
@@ -488,8 +519,10 @@ class VehicleTracker:
         out: Tracks,
         s: int,
         inp: SensorInput,
+        hidden_before: Bool,
     ) -> FusedColumns:
-        """The fused columns of the tracks in view after this frame (``new``'s rows)."""
+        """The fused columns of the tracks in view after this frame (``new``'s rows);
+        ``hidden_before``: the tracks before it (``before_ids``) hidden from the sensor."""
         n, n_s = len(new), len(self.sensors)
         pos = np.searchsorted(before_ids, new.ids)
         pos = np.minimum(pos, max(before_ids.size - 1, 0))
@@ -498,14 +531,22 @@ class VehicleTracker:
         stamps = np.full((n, n_s), -1, dtype=np.int64)
         kind = np.full(n, UpdateKind.MATCHED, dtype=np.int8)
         odds = np.zeros(n)
+        occluded = np.zeros(n, dtype=np.int32)
+        hidden = np.zeros(n, dtype=bool)
         if before_ids.size:
             misses[old] = before.misses[pos[old]]
             stamps[old] = before.stamp_ns[pos[old]]
             kind[old] = before.last_kind[pos[old]]
             odds[old] = before.log_odds[pos[old]]
+            occluded[old] = before.occluded[pos[old]]
+            hidden[old] = hidden_before[pos[old]]
         upd = new.update
         updated = old & (upd != UpdateKind.COASTED)
-        coasted = old & (upd == UpdateKind.COASTED)
+        coasted = old & (upd == UpdateKind.COASTED) & ~hidden
+        unseen = old & (upd == UpdateKind.COASTED) & hidden
+        occluded[updated | coasted] = 0
+        if inp.key_frame:
+            occluded[unseen] += 1
         trust = self.fusion.sensors[inp.sensor]
         if inp.key_frame:
             misses[updated] = -1
@@ -522,7 +563,7 @@ class VehicleTracker:
         stamps[born, s] = inp.stamp_ns
         odds[born] = self._evidence(new.match_score[born], trust.existence, trust)
         np.clip(odds, -_LOGIT_MAX, _LOGIT_MAX, out=odds)
-        return FusedColumns(misses, stamps, kind, odds)
+        return FusedColumns(misses, stamps, kind, odds, occluded)
 
     @staticmethod
     def _evidence(score: F64, trusted: bool, trust: Any) -> F64:
@@ -569,8 +610,10 @@ class VehicleTracker:
         else:
             keep = confirmed & fresh
         keep |= coast
-        if self.fusion.min_existence > 0:
-            keep &= cols.log_odds >= _logit(self.fusion.min_existence)
+        keep &= fresh | (cols.occluded == 0)  # kept alive while hidden, shown when seen again
+        if self.fusion.min_existence > 0:  # a tentative track needs the evidence first
+            doubtful = cols.log_odds < _logit(self.fusion.min_existence)
+            keep &= ~(doubtful & (table.state == TrackState.TENTATIVE))
         rows = np.flatnonzero(keep)
         kalman = self.config.motion is MotionModel.KALMAN
         box = np.empty((n, 7))
@@ -680,6 +723,7 @@ class VehicleTracker:
                 "stamp_ns": _arr(c.stamp_ns),
                 "last_kind": _arr(c.last_kind),
                 "log_odds": _arr(c.log_odds),
+                "occluded": _arr(c.occluded),
                 "origin_ns": self.origin_ns,
                 "last_ns": self.last_ns,
                 "last_key": None if self.last_key is None else list(self.last_key),
@@ -710,6 +754,7 @@ class VehicleTracker:
             _unarr(obj["stamp_ns"]).astype(np.int64),
             _unarr(obj["last_kind"]).astype(np.int8),
             _unarr(obj["log_odds"]).astype(np.float64),
+            _unarr(obj["occluded"]).astype(np.int32),
         )
         v.origin_ns, v.last_ns, v.seq = obj["origin_ns"], obj["last_ns"], int(obj["seq"])
         key = obj["last_key"]
@@ -732,6 +777,27 @@ class VehicleTracker:
 
 
 # ---------------------------------------------------------------------------- helpers
+def _crowded(
+    new: TrackTable, born: Bool, out: Tracks, before: TrackTable, clearance: float
+) -> Bool:
+    """Births (rows of ``new``) within ``clearance`` of a track of their class that this
+    step left without an update, where the step put it (its report), or of one it did not
+    see (out of view: where it was last put)."""
+    not_updated = out.update == UpdateKind.COASTED
+    xy = [out.boxes.params[not_updated, :2]]
+    cls = [out.boxes.cls[not_updated]]
+    away = ~np.isin(before.ids, out.ids)
+    xy.append(before.out_box[away, :2])
+    cls.append(before.cls[away])
+    other_xy, other_cls = np.concatenate(xy), np.concatenate(cls)
+    b = np.flatnonzero(born)
+    d = np.hypot(*(new.x[b, None, :2] - other_xy[None, :, :2]).transpose(2, 0, 1))
+    near = ((d <= clearance) & (new.cls[b, None] == other_cls[None, :])).any(axis=1)
+    out_mask = np.zeros(len(new), dtype=bool)
+    out_mask[b] = near
+    return out_mask
+
+
 def _with_classes(config: TrackerConfig, changes: dict[str, dict[str, Any]]) -> Tracker:
     classes = dict(config.classes)
     for name, fields in changes.items():
@@ -832,6 +898,7 @@ def _concat(a: FusedColumns, b: FusedColumns) -> FusedColumns:
         np.concatenate([a.stamp_ns, b.stamp_ns]),
         np.concatenate([a.last_kind, b.last_kind]),
         np.concatenate([a.log_odds, b.log_odds]),
+        np.concatenate([a.occluded, b.occluded]),
     )
 
 
