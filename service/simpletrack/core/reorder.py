@@ -7,8 +7,9 @@ frames are released in is their stamp order (ties: the configured sensor order, 
 whatever order they arrived in; a frame arriving later than that is late (the vehicle
 tracker re-processes it, core/vehicle.py).
 
-A sensor never heard, or silent for ``silent_after_s``, is not waited for: a dead camera
-delays the lidar's frames by the window until it counts as silent, then not at all.
+A sensor never heard, silent for ``silent_after_s``, or ``ignored`` (the vehicle keeps it
+out: its clock or mounting is off) is not waited for: a dead camera delays the lidar's
+frames by the window until it counts as silent, then not at all.
 
 Pure: the caller passes its clock (``now``, seconds, monotonic).
 """
@@ -42,6 +43,7 @@ class ReorderBuffer(Generic[T]):
         self._count = itertools.count()
         self._latest: dict[str, int] = {}  # newest stamp received per sensor
         self._heard: dict[str, float] = {}  # when its newest frame arrived
+        self.ignored: frozenset[str] = frozenset()  # not waited for (kept out: flagged)
 
     def __len__(self) -> int:
         return len(self._heap)
@@ -61,7 +63,10 @@ class ReorderBuffer(Generic[T]):
             return True
         stamp = w.key[0]
         return all(
-            s == w.sensor or self.silent(s, now) or self._latest.get(s, -1) >= stamp
+            s == w.sensor
+            or s in self.ignored
+            or self.silent(s, now)
+            or self._latest.get(s, -1) >= stamp
             for s in self.sensors
         )
 

@@ -293,6 +293,16 @@ class VehicleTracker:
         if inp.lead_s is not None and inp.lead_s > tol:
             rec.source = "lead"
             return Condition.CLOCK, f"stamps {inp.lead_s:.3f} s ahead of the service's clock"
+        reference = self.records[self.sensors[0]]
+        ahead = (inp.stamp_ns - (reference.last_stamp_ns or inp.stamp_ns)) * 1e-9
+        if (
+            inp.sensor != self.sensors[0]
+            and reference.condition is Condition.OK
+            and ahead > self.fusion.window_s + tol
+        ):
+            # The reference's frames before it would have come first: its clock runs ahead.
+            rec.source = "lead"
+            return Condition.CLOCK, f"stamps {ahead:.3f} s ahead of the reference sensor's"
         verifies = self.fusion.verifies(inp.sensor)
         trusted = not verifies or rec.condition in (Condition.OK, Condition.SILENT)
         cond = Condition.OK if trusted else Condition.PROBATION
@@ -375,12 +385,9 @@ class VehicleTracker:
         rec.too_old = 0
         rec.transform = inp.transform
         no_births = _Births(np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros((0, 7)))
-        if cond.kept_out:
+        if cond.kept_out:  # changes no track, nor the vehicle's time
             rec.kept_out += 1
             outcome = Outcome.VERIFYING if cond is Condition.PROBATION else Outcome.FLAGGED
-            self._advance_key(key)
-            if record and saved is not None:
-                self._remember(inp, key, saved, no_births)
             return StepResult(outcome, detail=detail), no_births
         rec.frames += 1
         out, births = self._step(inp, boxes, t, reuse)

@@ -105,6 +105,9 @@ class FusedFrames:
             self._apply(state, waiting)
         for sensor in state.tracker.sensors:
             state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
+        state.buffer.ignored = frozenset(
+            s for s, r in state.tracker.records.items() if r.condition.kept_out
+        )
         if not len(state.buffer):
             self._waiting.discard(f"{state.vehicle}/{VEHICLE_STREAM}")
 
