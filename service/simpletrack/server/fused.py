@@ -170,6 +170,7 @@ class FusedFrames:
                 ErrorReason.INTERNAL_ERROR, None, detail, arrival.seq, arrival.stamp_ns))  # fmt: skip
             return
         m.fusion_frames.labels(outcome=result.outcome.value).inc()
+        state.taken[sensor] = arrival
         self._log_condition(state, sensor, before)
         t2 = time.perf_counter()
         m.stages["track"].observe(t2 - t1)

@@ -70,6 +70,9 @@ class VehicleState:
     sensor: str = VEHICLE_STREAM
     id_base: int = 0  # ids are the tracker's own: it never restarts them
     arrivals: dict[str, Arrival] = field(default_factory=dict)  # each sensor's last frame
+    # Each sensor's last frame the tracker took (a snapshot's: the frames still waiting in
+    # the reorder buffer are not in the state, so a takeover replays them).
+    taken: dict[str, Arrival] = field(default_factory=dict)
     last: Arrival | None = None  # the last frame applied (the vehicle's gap rule)
     frame: str | None = None  # "world" (poses) or "vehicle" (extrinsics): the first frame's
     per_sensor: dict[str, SensorState] = field(default_factory=dict)
@@ -221,7 +224,7 @@ class VehicleState:
                 {
                     "format": STATE_FORMAT,
                     "vehicle": self.tracker.to_bytes(),
-                    "arrivals": {s: _arrival_obj(a) for s, a in self.arrivals.items()},
+                    "arrivals": {s: _arrival_obj(a) for s, a in self.taken.items()},
                     "last": None if last is None else _arrival_obj(last),
                     "frame": self.frame,
                     "frames": self.frames,
@@ -283,6 +286,7 @@ def vehicle_from_snapshot(
     )
     state.tracker = VehicleTracker.from_bytes(obj["vehicle"], config, fusion)
     state.arrivals = {s: _arrival_of(a) for s, a in obj["arrivals"].items()}
+    state.taken = dict(state.arrivals)
     state.last = None if obj["last"] is None else _arrival_of(obj["last"])
     state.frame = obj["frame"]
     state.frames = int(obj["frames"])
