@@ -17,7 +17,17 @@ import numpy as np
 from simpletrack.wire.codec import pack
 
 VECTORS = Path(__file__).resolve().parents[2] / "schemas" / "vectors"
-KIND = {"DetectionFrame": "D", "TrackFrame": "T", "FrameError": "E"}
+KIND = {"DetectionFrame": "D", "TrackFrame": "T", "VehicleTrackFrame": "V", "FrameError": "E"}
+# Each column's dtype where it is not <f4 (or <i4 for the integer ones).
+_DTYPES = {
+    "id": "<i8",
+    "score": "<f8",
+    "age_s": "<f8",
+    "time_since_update_s": "<f8",
+    "existence": "<f8",
+    "sensor_stamp_ns": "<i8",
+}
+_INTEGER = ("class_index", "id", "state", "hits", "age", "time_since_update", "sensor_stamp_ns")
 
 # One of each msgpack type, and the edges of the wire's ranges.
 VALUES: list[Any] = [
@@ -64,7 +74,7 @@ def _maps(kind: str) -> list[dict[str, Any]]:
 
 
 def _field_cases(obj: dict[str, Any], nested: str | None) -> Iterator[dict[str, Any]]:
-    for key in [*obj, "pose", "session_id", "seqs", "speed"]:
+    for key in [*obj, "pose", "session_id", "seqs", "extrinsic", "speed"]:
         for value in VALUES:
             yield {**obj, key: value}
         if key in obj:
@@ -82,9 +92,9 @@ def _column_cases(obj: dict[str, Any], nested: str, rng: random.Random) -> Itera
     for name, buf in cols.items():
         if not isinstance(buf, bytes) or n == 0:
             continue
-        integer = name in ("class_index", "id", "state", "hits", "age", "time_since_update")
-        dtype = {"id": "<i8", "score": "<f8"}.get(name, "<i4" if integer else "<f4")
-        values: list[float] = [-1, 2, 3, 1000, 2**31 - 1] if integer else _F4
+        integer = name in _INTEGER
+        dtype = _DTYPES.get(name, "<i4" if integer else "<f4")
+        values: list[float] = [-2, -1, 2, 3, 1000, 2**31 - 1] if integer else [*_F4, 0.5, 1.5]
         for v in values:
             arr = np.frombuffer(buf, dtype).copy()
             arr[rng.randrange(len(arr))] = v
@@ -112,13 +122,15 @@ def cases(seed: int = 7, damaged: int = 600) -> list[tuple[str, bytes]]:
     """(kind letter, payload) pairs."""
     rng = random.Random(seed)
     out = [(kind, payload) for _, kind, payload in vectors()]
-    for kind, nested in (("D", "boxes"), ("T", "tracks"), ("E", None)):
+    for kind, nested in (("D", "boxes"), ("T", "tracks"), ("V", "tracks"), ("E", None)):
         for obj in _maps(kind):
             out += [(kind, pack(m)) for m in _field_cases(obj, nested)]
             if nested is not None:
                 out += [(kind, pack(m)) for m in _column_cases(obj, nested, rng)]
-            if kind in "DT":
+            if kind in "DTV":
                 out += [(kind, pack({**obj, "pose": p})) for p in _poses()]
+            if kind == "D":
+                out += [(kind, pack({**obj, "extrinsic": p})) for p in _poses()]
     valid = list(out[: len(out)])
     for _ in range(damaged):
         kind, payload = valid[rng.randrange(len(valid))]

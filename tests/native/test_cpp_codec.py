@@ -29,6 +29,7 @@ from simpletrack.wire import (
     decode_detection_frame,
     decode_message,
     decode_track_frame,
+    decode_vehicle_track_frame,
     encode_detection_frame,
 )
 from simpletrack.wire.codec import pack
@@ -188,6 +189,11 @@ def _python_verdict(kind: str, payload: bytes) -> tuple[str, Any]:
         if isinstance(t, Rejection):
             return "no", (t.reason.value, str(t.field), str(t.seq), str(t.stamp_ns))
         return "ok", to_map(t[0])
+    if kind == "v":
+        v = decode_vehicle_track_frame(payload)
+        if isinstance(v, Rejection):
+            return "no", (v.reason.value, str(v.field), str(v.seq), str(v.stamp_ns))
+        return "ok", to_map(v[0])
     e = decode_message(payload, FrameError)
     if isinstance(e, Rejection):
         return "no", (e.reason.value, str(e.field), str(e.seq), str(e.stamp_ns))
@@ -196,7 +202,7 @@ def _python_verdict(kind: str, payload: bytes) -> tuple[str, Any]:
 
 def test_cpp_decoder_gives_the_python_decoders_verdicts(build: Path) -> None:
     payloads = list(wire_mutations.mutations())
-    kinds = "dDte"
+    kinds = "dDtve"
     records = b"".join(k.encode() + struct.pack("<I", len(p)) + p for p in payloads for k in kinds)
     done = subprocess.run(
         [str(build / "wire_decode")], input=records, capture_output=True, check=False

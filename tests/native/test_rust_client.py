@@ -22,6 +22,7 @@ from simpletrack.wire.codec import (
     encode_detection_frame,
 )
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
+from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame
 from tests.native.cargo_build import BUILD_TIMEOUT_S, cargo, example
 from tests.native.fixture_frame import assert_same_frame, reference_payload
 from tests.native.payload_cases import cases
@@ -171,6 +172,8 @@ def _python_verdict(kind: str, payload: bytes) -> dict[str, Any]:
         r: object = decode_detection_frame(payload)
     elif kind == "T":
         r = decode_track_frame(payload)
+    elif kind == "V":
+        r = decode_vehicle_track_frame(payload)
     else:
         r = decode_message(payload, FrameError)
     if not isinstance(r, Rejection):

@@ -8,6 +8,7 @@ format, bad UTF-8, lists nested 1024 deep).
 
 from __future__ import annotations
 
+import copy
 import random
 import struct
 from collections.abc import Iterator
@@ -23,8 +24,13 @@ VALID = (
     "detection_basic",
     "detection_full",
     "detection_empty",
+    "detection_extrinsic",
     "tracks_basic",
+    "tracks_v2",
+    "vehicle_tracks_basic",
+    "vehicle_tracks_empty",
     "error_unknown_class",
+    "error_sensor_flagged",
 )
 
 
@@ -202,8 +208,30 @@ COLUMN_WIDTHS = {
     "hits": ("<i4", 1),
     "age": ("<i4", 1),
     "time_since_update": ("<i4", 1),
+    "covariance": ("<f4", 21),
+    "age_s": ("<f8", 1),
+    "time_since_update_s": ("<f8", 1),
+    "existence": ("<f8", 1),
+    "sensor_stamp_ns": ("<i8", 2),  # the basic vehicle vector's two sensors
 }
-EXTRA_KEYS = ["speed", "Seq", "", "boxes ", "velocity", "pose", "session_id", "seqs"]
+EXTRA_KEYS = [
+    "speed",
+    "Seq",
+    "",
+    "boxes ",
+    "velocity",
+    "pose",
+    "session_id",
+    "seqs",
+    "extrinsic",
+    "existence",
+    "key_frame",
+]
+
+
+def _value(rng: random.Random) -> Any:
+    # A copy: a shared Pairs edited in one payload (or set inside itself) would recurse.
+    return copy.deepcopy(rng.choice(VALUES))
 
 
 def bases() -> list[bytes]:
@@ -235,11 +263,11 @@ def _bad_column(rng: random.Random, name: str, count: int) -> bytes:
     if dtype.startswith("<i"):
         ints = [rng.choice([0, 1]) for _ in range(n)]
         if ints and rng.random() < 0.7:
-            ints[rng.randrange(n)] = rng.choice([2, 3, -1, 2**31 - 1, -(2**31)])
+            ints[rng.randrange(n)] = rng.choice([2, 3, -1, -2, 2**31 - 1, -(2**31)])
         return _column(ints, dtype)
     floats = [rng.uniform(0.1, 5) for _ in range(n)]
     if floats:  # one odd value, in any row
-        floats[rng.randrange(n)] = rng.choice(FLOAT_SPECIALS)
+        floats[rng.randrange(n)] = rng.choice([*FLOAT_SPECIALS, 0.5, 1.5])
     return _column(floats, dtype)
 
 
@@ -248,18 +276,18 @@ def _mutate_map(rng: random.Random, items: list[tuple[Any, Any]], nested: bool) 
     if nested and roll < 0.5:
         roll = 0.9  # mostly columns: the checks after the fields' types
     elif not nested and roll < 0.1:
-        items.append(("pose", rng.choice(POSES)))
+        items.append((rng.choice(["pose", "pose", "extrinsic"]), rng.choice(POSES)))
         return
     if roll < 0.45 and items:  # a field set to an odd value
         i = rng.randrange(len(items))
-        items[i] = (items[i][0], rng.choice(VALUES))
+        items[i] = (items[i][0], _value(rng))
     elif roll < 0.6 and items:  # a field dropped
         del items[rng.randrange(len(items))]
     elif roll < 0.7:  # an unknown, repeated, bin or int key
         key = rng.choice(
             [*EXTRA_KEYS, *(k for k, _ in items), b"speed", Raw(b"\x01"), Raw(b"\xc0")]
         )
-        items.insert(rng.randrange(len(items) + 1), (key, rng.choice(VALUES)))
+        items.insert(rng.randrange(len(items) + 1), (key, _value(rng)))
     elif roll < 0.8:  # the same keys in another order
         rng.shuffle(items)
     else:  # a column with bad lengths or values, or a changed count

@@ -64,6 +64,8 @@ wire::DetectionFrame detection(const json& d) {
   f.pose = pose(d.at("pose"));
   f.key_frame = d.at("key_frame");
   f.session_id = maybe<std::uint64_t>(d, "session_id");
+  if (d.contains("extrinsic")) f.extrinsic = pose(d.at("extrinsic"));
+  f.schema_version = d.at("schema_version").get<int>();
   const json& b = d.at("boxes");
   f.boxes.classes = values<std::string>(b.at("classes"));
   f.boxes.class_index = values<std::int32_t>(b.at("class_index"));
@@ -75,6 +77,55 @@ wire::DetectionFrame detection(const json& d) {
   return f;
 }
 
+wire::TrackColumns track_columns(const json& t) {
+  wire::TrackColumns c;
+  c.classes = values<std::string>(t.at("classes"));
+  c.id = values<std::int64_t>(t.at("id"));
+  c.class_index = values<std::int32_t>(t.at("class_index"));
+  c.center = rows<3>(t.at("center"));
+  c.size = rows<3>(t.at("size"));
+  c.yaw = values<float>(t.at("yaw"));
+  c.score = values<double>(t.at("score"));
+  c.velocity = rows<3>(t.at("velocity"));
+  c.state = values<std::int32_t>(t.at("state"));
+  c.hits = values<std::int32_t>(t.at("hits"));
+  c.age = values<std::int32_t>(t.at("age"));
+  c.time_since_update = values<std::int32_t>(t.at("time_since_update"));
+  if (t.contains("covariance") && !t.at("covariance").is_null()) {
+    c.covariance = rows<21>(t.at("covariance"));
+  }
+  if (t.contains("age_s")) c.age_s = values<double>(t.at("age_s"));
+  if (t.contains("time_since_update_s")) {
+    c.time_since_update_s = values<double>(t.at("time_since_update_s"));
+  }
+  if (t.contains("existence")) c.existence = values<double>(t.at("existence"));
+  if (t.contains("sensor_stamp_ns")) {
+    c.sensor_stamp_ns.emplace();
+    for (const auto& row : t.at("sensor_stamp_ns")) {
+      c.sensor_stamp_ns->push_back(values<std::int64_t>(row));
+    }
+  }
+  return c;
+}
+
+wire::VehicleTrackFrame vehicle_track(const json& d) {
+  wire::VehicleTrackFrame f;
+  f.vehicle = d.at("vehicle"), f.sensor = d.at("sensor"), f.frame_id = d.at("frame_id");
+  f.seq = d.at("seq"), f.stamp_ns = d.at("stamp_ns"), f.sensor_seq = d.at("sensor_seq");
+  f.pose = pose(d.at("pose"));
+  f.instance = d.at("instance");
+  f.received_ns = d.at("received_ns"), f.published_ns = d.at("published_ns");
+  f.sensors = values<std::string>(d.at("sensors"));
+  for (const auto& s : d.at("sensor_state")) {
+    const auto c = wire::parse_sensor_condition(s.get<std::string>());
+    if (!c) throw std::runtime_error("unknown sensor state in the JSON");
+    f.sensor_state.push_back(*c);
+  }
+  // An empty frame's stamps are [] in the JSON: no rows, whatever the number of sensors.
+  f.tracks = track_columns(d.at("tracks"));
+  return f;
+}
+
 wire::TrackFrame track(const json& d) {
   wire::TrackFrame f;
   f.vehicle = d.at("vehicle"), f.sensor = d.at("sensor"), f.frame_id = d.at("frame_id");
@@ -83,27 +134,8 @@ wire::TrackFrame track(const json& d) {
   f.key_frame = d.at("key_frame");
   f.instance = d.at("instance");
   f.received_ns = d.at("received_ns"), f.published_ns = d.at("published_ns");
-  const json& t = d.at("tracks");
-  f.tracks.classes = values<std::string>(t.at("classes"));
-  f.tracks.id = values<std::int64_t>(t.at("id"));
-  f.tracks.class_index = values<std::int32_t>(t.at("class_index"));
-  f.tracks.center = rows<3>(t.at("center"));
-  f.tracks.size = rows<3>(t.at("size"));
-  f.tracks.yaw = values<float>(t.at("yaw"));
-  f.tracks.score = values<double>(t.at("score"));
-  f.tracks.velocity = rows<3>(t.at("velocity"));
-  f.tracks.state = values<std::int32_t>(t.at("state"));
-  f.tracks.hits = values<std::int32_t>(t.at("hits"));
-  f.tracks.age = values<std::int32_t>(t.at("age"));
-  f.tracks.time_since_update = values<std::int32_t>(t.at("time_since_update"));
   f.schema_version = d.at("schema_version").get<int>();
-  if (t.contains("covariance") && !t.at("covariance").is_null()) {
-    f.tracks.covariance = rows<21>(t.at("covariance"));
-  }
-  if (t.contains("age_s")) f.tracks.age_s = values<double>(t.at("age_s"));
-  if (t.contains("time_since_update_s")) {
-    f.tracks.time_since_update_s = values<double>(t.at("time_since_update_s"));
-  }
+  f.tracks = track_columns(d.at("tracks"));
   return f;
 }
 
@@ -187,6 +219,10 @@ int main(int argc, char** argv) {
       } else if (message == "TrackFrame") {
         check_vector<wire::TrackFrame>(
             name, j, bytes, [](const auto& b) { return wire::decode_track_frame(b); }, track);
+      } else if (message == "VehicleTrackFrame") {
+        check_vector<wire::VehicleTrackFrame>(
+            name, j, bytes, [](const auto& b) { return wire::decode_vehicle_track_frame(b); },
+            vehicle_track);
       } else if (message == "FrameError") {
         check_vector<wire::FrameError>(
             name, j, bytes, [](const auto& b) { return wire::decode_frame_error(b); }, frame_error);

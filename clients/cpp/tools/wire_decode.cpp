@@ -3,7 +3,7 @@
 //
 // stdin: records of [kind: 1 byte][length: 4 bytes little-endian][payload], kind one of
 //   'd' DetectionFrame, 'D' DetectionFrame accepting only Car and Pedestrian,
-//   't' TrackFrame, 'e' FrameError.
+//   't' TrackFrame, 'v' VehicleTrackFrame, 'e' FrameError.
 // stdout: per record one line, tab-separated:
 //   ok <hex of the decoded message re-encoded>
 //   no <reason> <field or None> <seq or None> <stamp_ns or None>
@@ -76,6 +76,9 @@ int main() {
         break;
       case 't':
         print(wire::decode_track_frame(p, n));
+        break;
+      case 'v':
+        print(wire::decode_vehicle_track_frame(p, n));
         break;
       case 'e':
         print(wire::decode_frame_error(p, n));

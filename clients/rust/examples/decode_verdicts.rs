@@ -1,14 +1,16 @@
 //! Decode payloads given on stdin and print each verdict as a JSON line: the check that
 //! holds this crate's decoders to the Python reference's verdicts on arbitrary payloads.
 //!
-//! Input lines: `D <hex>` (DetectionFrame), `T <hex>` (TrackFrame), `E <hex>` (FrameError).
+//! Input lines: `D <hex>` (DetectionFrame), `T <hex>` (TrackFrame), `V <hex>`
+//! (VehicleTrackFrame), `E <hex>` (FrameError).
 //! Output lines: `{"valid": true}` or `{"valid": false, "reason", "field", "seq", "stamp_ns"}`.
 
 use std::io::{self, BufRead, Write};
 
 use serde_json::json;
 use simpletrack_client::wire::{
-    decode_detection_frame, decode_frame_error, decode_track_frame, DecodeLimits, Rejection,
+    decode_detection_frame, decode_frame_error, decode_track_frame, decode_vehicle_track_frame,
+    DecodeLimits, Rejection,
 };
 
 fn unhex(s: &str) -> Option<Vec<u8>> {
@@ -32,9 +34,10 @@ fn main() {
         let verdict: Result<(), Rejection> = match kind {
             "D" => decode_detection_frame(&payload, &limits).map(drop),
             "T" => decode_track_frame(&payload, &limits).map(drop),
+            "V" => decode_vehicle_track_frame(&payload, &limits).map(drop),
             "E" => decode_frame_error(&payload, &limits).map(drop),
             other => {
-                eprintln!("error: unknown message kind {other:?} (D, T or E)");
+                eprintln!("error: unknown message kind {other:?} (D, T, V or E)");
                 std::process::exit(2);
             }
         };

@@ -18,6 +18,7 @@ fn fixture() -> DetectionFrame {
         pose: None,
         key_frame: true,
         session_id: None,
+        extrinsic: None,
         boxes: BoxColumns {
             classes: vec!["Car".into(), "Pedestrian".into()],
             class_index: vec![0, 1, 0],

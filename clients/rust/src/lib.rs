@@ -1,7 +1,8 @@
 //! Rust client of the SimpleTrack tracking service: publish a vehicle's 3D detection frames,
 //! receive the tracks (and the errors) the service sends back, over Eclipse Zenoh.
 //!
-//! - [`wire`]: the messages of schemas/README.md (schema version 1) and their msgpack codec.
+//! - [`wire`]: the messages of schemas/README.md and their msgpack codec, a vehicle's fused
+//!   tracks (`VehicleTrackFrame`) included.
 //! - [`DetectionPublisher`]: one per vehicle sensor (an advanced publisher with a cache).
 //! - [`TrackSubscriber`], [`ErrorSubscriber`]: the planner side.
 //! - [`ZenohOptions`]: a session with the service's safe defaults (no multicast scouting).

@@ -12,6 +12,10 @@
 //! router outage asks the cache for them; frames the cache no longer holds come back as a
 //! `missed` notice on the errors key. A frame published while no service is reachable is
 //! reported to `on_undelivered` as held and, if the outage outlasts the cache, again as lost.
+//!
+//! A sensor of a vehicle whose sensors the service fuses gives its mounting,
+//! `PublisherOptions::extrinsic` (sensor→vehicle): every frame then carries it
+//! (`DetectionFrame` version 2). A vehicle without poses must give it (docs/VEHICLES.md).
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -28,6 +32,7 @@ use crate::errors::{ErrorCallback, ErrorSubscriber, ErrorSubscriberOptions};
 use crate::session::ZenohOptions;
 use crate::subscriber::now_ns;
 use crate::wire::detection::{encode_parts, Header};
+use crate::wire::header::check_transform;
 use crate::wire::{
     decode_service_status, BoxColumns, DecodeLimits, Keys, SensorStatus, DEFAULT_PREFIX, ENCODING,
 };
@@ -65,6 +70,9 @@ pub struct PublisherOptions {
     pub on_error: Option<ErrorCallback>,
     /// Called from `publish` (the caller's thread) for frames sent while no service listens.
     pub on_undelivered: Option<UndeliveredCallback>,
+    /// The sensor's mounting, sensor→vehicle 4×4 row-major, sent with every frame; checked
+    /// once, by `new` (`Error::Invalid`, field `extrinsic`). None: frames carry none.
+    pub extrinsic: Option<[f64; 16]>,
 }
 
 impl Default for PublisherOptions {
@@ -80,6 +88,7 @@ impl Default for PublisherOptions {
             error_buffer: 1000,
             on_error: None,
             on_undelivered: None,
+            extrinsic: None,
         }
     }
 }
@@ -94,6 +103,8 @@ pub struct FrameOptions {
     pub key_frame: bool,
     /// Default: one more than the last; may skip ahead, never go back.
     pub seq: Option<u64>,
+    /// Sensor→vehicle for this frame alone, in place of `PublisherOptions::extrinsic`.
+    pub extrinsic: Option<[f64; 16]>,
 }
 
 impl Default for FrameOptions {
@@ -103,6 +114,7 @@ impl Default for FrameOptions {
             pose: None,
             key_frame: true,
             seq: None,
+            extrinsic: None,
         }
     }
 }
@@ -137,6 +149,7 @@ pub struct DetectionPublisher {
     session_id: u64,
     sent: u64,
     cache_frames: usize,
+    extrinsic: Option<[f64; 16]>,
     session: Session,
     owns_session: bool,
     publisher: Option<AdvancedPublisher<'static>>,
@@ -163,6 +176,9 @@ impl DetectionPublisher {
         }
         if options.heartbeat.is_zero() {
             return Err(Error::InvalidOption("heartbeat must be positive".into()));
+        }
+        if let Some(e) = &options.extrinsic {
+            check_transform(e, "extrinsic").map_err(|e| e.into_rejection(None, None))?;
         }
         let keys = Keys::new(options.prefix.clone());
         let key = keys.detections(vehicle, sensor);
@@ -207,6 +223,7 @@ impl DetectionPublisher {
                 .unwrap_or_else(|| rand::random::<u64>() >> 1),
             sent: 0,
             cache_frames: options.cache_frames,
+            extrinsic: options.extrinsic,
             session: session.clone(),
             owns_session: false,
             publisher: Some(publisher),
@@ -292,6 +309,7 @@ impl DetectionPublisher {
             pose: frame.pose.as_ref(),
             key_frame: frame.key_frame,
             session_id: Some(self.session_id),
+            extrinsic: frame.extrinsic.as_ref().or(self.extrinsic.as_ref()),
         };
         let payload = encode_parts(&header, boxes)?;
         publisher.put(payload).wait()?;

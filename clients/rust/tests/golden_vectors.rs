@@ -6,9 +6,10 @@ use std::path::PathBuf;
 
 use serde_json::{json, Value};
 use simpletrack_client::wire::{
-    decode_detection_frame, decode_frame_error, decode_track_frame, encode_detection_frame,
-    encode_frame_error, encode_track_frame, BoxColumns, DecodeLimits, DetectionFrame, FrameError,
-    Rejection, TrackColumns, TrackFrame, SCHEMA_VERSION,
+    decode_detection_frame, decode_frame_error, decode_track_frame, decode_vehicle_track_frame,
+    encode_detection_frame, encode_frame_error, encode_track_frame, encode_vehicle_track_frame,
+    BoxColumns, DecodeLimits, DetectionFrame, FrameError, Rejection, TrackColumns, TrackFrame,
+    VehicleTrackFrame, SCHEMA_VERSION,
 };
 
 fn vectors_dir() -> PathBuf {
@@ -45,12 +46,16 @@ fn boxes_json(b: &BoxColumns) -> Value {
 }
 
 fn detection_json(d: &DetectionFrame) -> Value {
-    json!({
-        "schema_version": SCHEMA_VERSION,
+    let mut v = json!({
+        "schema_version": d.schema_version(),
         "vehicle": d.vehicle, "sensor": d.sensor, "seq": d.seq, "stamp_ns": d.stamp_ns,
         "frame_id": d.frame_id, "pose": pose(&d.pose), "key_frame": d.key_frame,
         "session_id": d.session_id, "boxes": boxes_json(&d.boxes),
-    })
+    });
+    if d.extrinsic.is_some() {
+        v["extrinsic"] = pose(&d.extrinsic);
+    }
+    v
 }
 
 fn tracks_json(c: &TrackColumns, version: u64) -> Value {
@@ -69,6 +74,21 @@ fn tracks_json(c: &TrackColumns, version: u64) -> Value {
             .map_or(Value::Null, |a| floats(a));
     }
     v
+}
+
+fn vehicle_track_frame_json(t: &VehicleTrackFrame) -> Value {
+    let mut tracks = tracks_json(&t.tracks, 2);
+    let c = &t.tracks;
+    tracks["existence"] = c.existence.as_ref().map_or(Value::Null, |e| floats(e));
+    tracks["sensor_stamp_ns"] = json!(c.sensor_stamp_ns);
+    let states: Vec<&str> = t.sensor_state.iter().map(|s| s.as_str()).collect();
+    json!({
+        "schema_version": 1,
+        "vehicle": t.vehicle, "seq": t.seq, "stamp_ns": t.stamp_ns, "sensor": t.sensor,
+        "sensor_seq": t.sensor_seq, "frame_id": t.frame_id, "pose": pose(&t.pose),
+        "instance": t.instance, "received_ns": t.received_ns, "published_ns": t.published_ns,
+        "sensors": t.sensors, "sensor_state": states, "tracks": tracks,
+    })
 }
 
 fn track_frame_json(t: &TrackFrame) -> Value {
@@ -105,6 +125,13 @@ fn decode(kind: &str, payload: &[u8]) -> Result<(Value, Vec<u8>), Rejection> {
         "TrackFrame" => {
             let t = decode_track_frame(payload, &limits)?;
             (track_frame_json(&t), encode_track_frame(&t)?)
+        }
+        "VehicleTrackFrame" => {
+            let t = decode_vehicle_track_frame(payload, &limits)?;
+            (
+                vehicle_track_frame_json(&t),
+                encode_vehicle_track_frame(&t)?,
+            )
         }
         "FrameError" => {
             let e = decode_frame_error(payload, &limits)?;

@@ -158,6 +158,10 @@ def rigid_transform(p: list[float] | None, field: str) -> F64 | None:
     rot = pose[:3, :3]
     rigid = (
         max(abs(p[12]), abs(p[13]), abs(p[14]), abs(p[15] - 1.0)) <= POSE_TOLERANCE
+        # An entry over 1 + tolerance already fails orthonormality (its row's norm); said
+        # first, a huge one never reaches the product, which would overflow (a warning the
+        # service logs as a floating-point fault).
+        and max(map(abs, (*p[0:3], *p[4:7], *p[8:11]))) <= 1.0 + POSE_TOLERANCE
         and np.abs(rot @ rot.T - _EYE3).max() <= POSE_TOLERANCE
         and _det3(p) > 0
     )

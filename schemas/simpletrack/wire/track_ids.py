@@ -4,6 +4,10 @@ A track id is unique per sensor and never reused, across resets and restarts (th
 keeps a durable id floor per sensor, ``server/registry.py`` ``reserve_ids``), and vehicle and
 sensor names are unique in a fleet; so ``<vehicle>/<sensor>/<id>`` names one track of the
 whole fleet for good (schemas/README.md, "Track identity").
+
+A vehicle's fused track (VehicleTrackFrame) is named the same way with the vehicle stream in
+the sensor's place, ``<vehicle>/@vehicle/<id>`` (``global_id(vehicle, VEHICLE_STREAM, id)``):
+its ids are unique per vehicle stream and never reused, and no sensor is named ``@vehicle``.
 """
 
 from __future__ import annotations
@@ -13,7 +17,8 @@ import numpy.typing as npt
 
 
 def global_id(vehicle: str, sensor: str, track_id: int) -> str:
-    """``<vehicle>/<sensor>/<id>``: '/' cannot occur in either name (NAME_PATTERN)."""
+    """``<vehicle>/<sensor>/<id>``: '/' cannot occur in either name (NAME_PATTERN); a fused
+    track's ``sensor`` is ``keys.VEHICLE_STREAM``."""
     return f"{vehicle}/{sensor}/{int(track_id)}"
 
 

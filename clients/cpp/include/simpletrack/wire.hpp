@@ -1,5 +1,6 @@
-// SimpleTrack wire codec, schema version 1 (schemas/README.md): header-only, C++17,
-// on msgpack-c++ (4.x or newer).
+// SimpleTrack wire codec (schemas/README.md): header-only, C++17, on msgpack-c++ (4.x or
+// newer). DetectionFrame versions 1 and 2 (extrinsic), TrackFrame 1 and 2, FrameError, and a
+// vehicle's fused tracks (VehicleTrackFrame, wire/vehicle_tracks.hpp).
 //
 //   #include <simpletrack/wire.hpp>
 //   namespace wire = simpletrack::wire;
@@ -13,3 +14,4 @@
 #include "simpletrack/wire/decode.hpp"
 #include "simpletrack/wire/encode.hpp"
 #include "simpletrack/wire/messages.hpp"
+#include "simpletrack/wire/vehicle_tracks.hpp"

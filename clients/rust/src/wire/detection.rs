@@ -5,12 +5,12 @@ use super::fields::{
     binary, int64, integer, name, nullable, string, Fields, INT32_MAX, MAX_FRAME_ID,
 };
 use super::header::{
-    check_classes, check_int64_field, check_name_field, check_pose, check_version, classes, peek,
-    pose_field, unpack_map, version_field, DecodeLimits, MAX_COORDINATE_M, MAX_SIZE_M,
-    MAX_SPEED_MPS, MAX_YAW_RAD,
+    check_classes, check_int64_field, check_name_field, check_pose, check_transform,
+    check_version_in, classes, peek, pose_field, unpack_map, version_field, DecodeLimits,
+    MAX_COORDINATE_M, MAX_SIZE_M, MAX_SPEED_MPS, MAX_YAW_RAD,
 };
 use super::pack::Packer;
-use super::reasons::{ErrorReason, SCHEMA_VERSION};
+use super::reasons::{ErrorReason, DETECTION_SCHEMA_VERSION, SCHEMA_VERSION};
 use super::rejection::{Checked, Invalid, Rejection};
 use super::value::Map;
 
@@ -99,6 +99,21 @@ pub struct DetectionFrame {
     /// Random per publisher run: a new value tells the service the publisher restarted.
     pub session_id: Option<u64>,
     pub boxes: BoxColumns,
+    /// Sensor→vehicle rigid transform, 4×4 row-major: the sensor's mounting, which a vehicle
+    /// whose sensors are fused needs (schema version 2).
+    pub extrinsic: Option<[f64; 16]>,
+}
+
+impl DetectionFrame {
+    /// The version the encoder writes: 2 with an extrinsic, else 1 (the bytes a publisher
+    /// of before version 2 sent). A version-2 frame without one decodes to the same frame.
+    pub fn schema_version(&self) -> u64 {
+        if self.extrinsic.is_some() {
+            DETECTION_SCHEMA_VERSION
+        } else {
+            SCHEMA_VERSION
+        }
+    }
 }
 
 struct RawBoxes<'v> {
@@ -159,7 +174,7 @@ fn decode_checked(
     value: &super::fields::V<'_>,
     limits: &DecodeLimits,
 ) -> Checked<DetectionFrame> {
-    check_version(map)?;
+    let version = check_version_in(map, SCHEMA_VERSION, DETECTION_SCHEMA_VERSION)?;
     let mut f = Fields::new(value, "DetectionFrame")?;
     version_field(&mut f)?;
     let vehicle = f.required("vehicle", name)?.to_owned();
@@ -173,6 +188,10 @@ fn decode_checked(
     let key_frame = f.optional("key_frame", true, super::fields::boolean)?;
     let session_id = f.optional("session_id", None, |v| nullable(v, int64))?;
     let raw = f.required("boxes", raw_boxes)?;
+    let extrinsic = match version {
+        1 => None, // then an extrinsic key is an unknown one, as to a version-1 reader
+        _ => f.optional("extrinsic", None, pose_field)?,
+    };
     f.finish()?;
 
     let count = raw.count;
@@ -199,6 +218,9 @@ fn decode_checked(
     if let Some(p) = &pose {
         check_pose(p)?;
     }
+    if let Some(e) = &extrinsic {
+        check_transform(e, "extrinsic")?;
+    }
     Ok(DetectionFrame {
         vehicle,
         sensor,
@@ -209,11 +231,12 @@ fn decode_checked(
         key_frame,
         session_id,
         boxes,
+        extrinsic,
     })
 }
 
-/// Decode and validate a `DetectionFrame` (schemas/README.md, "Validation order and
-/// reasons", steps 1-10). Class names are not checked: see `check_known_classes`.
+/// Decode and validate a `DetectionFrame`, version 1 or 2 (schemas/README.md, "Validation
+/// order and reasons", steps 1-10). Class names are not checked: see `check_known_classes`.
 pub fn decode_detection_frame(
     payload: &[u8],
     limits: &DecodeLimits,
@@ -262,6 +285,7 @@ pub(crate) struct Header<'a> {
     pub pose: Option<&'a [f64; 16]>,
     pub key_frame: bool,
     pub session_id: Option<u64>,
+    pub extrinsic: Option<&'a [f64; 16]>,
 }
 
 impl<'a> Header<'a> {
@@ -275,6 +299,7 @@ impl<'a> Header<'a> {
             pose: d.pose.as_ref(),
             key_frame: d.key_frame,
             session_id: d.session_id,
+            extrinsic: d.extrinsic.as_ref(),
         }
     }
 }
@@ -316,12 +341,16 @@ fn check_frame(h: &Header<'_>, b: &BoxColumns) -> Checked<()> {
     if let Some(p) = h.pose {
         check_pose(p)?;
     }
+    if let Some(e) = h.extrinsic {
+        check_transform(e, "extrinsic")?;
+    }
     Ok(())
 }
 
 /// The frame as msgpack, byte for byte what the reference encoder writes for it: header,
-/// `key_frame`, `boxes`, then `pose` and `session_id` when present. A frame the decoder
-/// would refuse (steps 4-10) is refused here with the same reason and field.
+/// `key_frame`, `boxes`, then `pose`, `session_id` and `extrinsic` when present (version 2
+/// with an extrinsic, else 1). A frame the decoder would refuse (steps 4-10) is refused here
+/// with the same reason and field.
 pub fn encode_detection_frame(d: &DetectionFrame) -> Result<Vec<u8>, Rejection> {
     encode_parts(&Header::of(d), &d.boxes)
 }
@@ -330,8 +359,16 @@ pub(crate) fn encode_parts(h: &Header<'_>, b: &BoxColumns) -> Result<Vec<u8>, Re
     check_frame(h, b).map_err(|e| e.into_rejection(Some(h.seq), Some(h.stamp_ns)))?;
     let rows = b.count();
     let mut p = Packer::new(256 + rows * 48);
-    p.map(8 + usize::from(h.pose.is_some()) + usize::from(h.session_id.is_some()));
-    p.key("schema_version").uint(SCHEMA_VERSION);
+    p.map(
+        8 + usize::from(h.pose.is_some())
+            + usize::from(h.session_id.is_some())
+            + usize::from(h.extrinsic.is_some()),
+    );
+    let version = match h.extrinsic {
+        Some(_) => DETECTION_SCHEMA_VERSION,
+        None => SCHEMA_VERSION,
+    };
+    p.key("schema_version").uint(version);
     p.key("vehicle").str(h.vehicle);
     p.key("sensor").str(h.sensor);
     p.key("seq").uint(h.seq);
@@ -354,6 +391,9 @@ pub(crate) fn encode_parts(h: &Header<'_>, b: &BoxColumns) -> Result<Vec<u8>, Re
     }
     if let Some(id) = h.session_id {
         p.key("session_id").uint(id);
+    }
+    if let Some(e) = h.extrinsic {
+        p.key("extrinsic").f64s(e);
     }
     Ok(p.finish())
 }

@@ -197,6 +197,25 @@ pub(crate) fn array<'v, T>(
     Ok(out)
 }
 
+/// One of an enumeration's strings (a UTF-8 `bin` holding one is read too); else
+/// `invalid_value` listing them, as the reference decoder words it.
+pub(crate) fn one_of<T: Copy>(v: &V<'_>, all: &[T], name: fn(T) -> &'static str) -> Checked<T> {
+    let text = match v {
+        ValueRef::String(s) => s.as_str(),
+        ValueRef::Binary(b) => std::str::from_utf8(b).ok(),
+        _ => None,
+    };
+    if let Some(found) = text.and_then(|t| all.iter().copied().find(|&x| name(x) == t)) {
+        return Ok(found);
+    }
+    let names: Vec<String> = all.iter().map(|&x| format!("'{}'", name(x))).collect();
+    let (last, head) = names.split_last().unwrap_or((&names[0], &[]));
+    Err(invalid(format!(
+        "Input should be {} or {last}",
+        head.join(", ")
+    )))
+}
+
 pub(crate) fn map_of<'v>(v: &'v V<'v>, type_name: &str) -> Checked<Map<'v>> {
     match v {
         ValueRef::Map(pairs) => Ok(Map::of(pairs)),

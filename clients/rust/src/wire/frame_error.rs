@@ -1,9 +1,7 @@
 //! `FrameError` (`<prefix>/<vehicle>/<sensor>/errors`): a frame the service did not track,
 //! or (drop notices) many frames it shed, or a run of frames lost in transport (`missed`).
 
-use rmpv::ValueRef;
-
-use super::fields::{array, int64, name, nullable, string, Fields, MAX_NOTICE_SEQS, V};
+use super::fields::{array, int64, name, nullable, one_of, string, Fields, MAX_NOTICE_SEQS, V};
 use super::header::{
     check_int64_field, check_name_field, check_version, unpack_map, version_field, DecodeLimits,
 };
@@ -48,22 +46,7 @@ impl FrameError {
 }
 
 fn reason(v: &V<'_>) -> Checked<ErrorReason> {
-    let text = match v {
-        ValueRef::String(s) => s.as_str(),
-        ValueRef::Binary(b) => std::str::from_utf8(b).ok(),
-        _ => None,
-    };
-    text.and_then(ErrorReason::parse).ok_or_else(|| {
-        let names: Vec<String> = ErrorReason::ALL
-            .iter()
-            .map(|r| format!("'{}'", r.as_str()))
-            .collect();
-        let (last, head) = names.split_last().unwrap_or((&names[0], &[]));
-        Invalid::new(
-            ErrorReason::InvalidValue,
-            format!("Input should be {} or {last}", head.join(", ")),
-        )
-    })
+    one_of(v, &ErrorReason::ALL, ErrorReason::as_str)
 }
 
 fn decode_checked(map: &Map<'_>, value: &V<'_>) -> Checked<FrameError> {

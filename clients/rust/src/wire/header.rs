@@ -154,11 +154,16 @@ fn orthonormal(p: &[f64; 16]) -> bool {
 /// Step 10: finite, rigid (last row `0 0 0 1`, orthonormal rotation, no reflection), and a
 /// translation within bounds.
 pub(crate) fn check_pose(p: &[f64; 16]) -> Checked<()> {
+    check_transform(p, "pose")
+}
+
+/// The rules of a pose for any rigid transform (a pose, an extrinsic), named by `field`.
+pub(crate) fn check_transform(p: &[f64; 16], field: &str) -> Checked<()> {
     if !p.iter().all(|v| v.is_finite()) {
         return Err(Invalid::at(
             ErrorReason::NonFinite,
-            "pose",
-            "NaN or inf in the pose",
+            field,
+            format!("NaN or inf in the {field}"),
         ));
     }
     let last_row = [p[12].abs(), p[13].abs(), p[14].abs(), (p[15] - 1.0).abs()];
@@ -166,7 +171,7 @@ pub(crate) fn check_pose(p: &[f64; 16]) -> Checked<()> {
     if !rigid {
         return Err(Invalid::at(
             ErrorReason::InvalidValue,
-            "pose",
+            field,
             "not a rigid transform (row-major 4x4)",
         ));
     }
@@ -176,7 +181,7 @@ pub(crate) fn check_pose(p: &[f64; 16]) -> Checked<()> {
     {
         return Err(Invalid::at(
             ErrorReason::InvalidValue,
-            "pose",
+            field,
             format!("translation over {MAX_COORDINATE_M} m"),
         ));
     }

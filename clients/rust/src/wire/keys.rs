@@ -2,6 +2,9 @@
 
 pub const DEFAULT_PREFIX: &str = "fleet";
 pub const SERVICE_CHUNK: &str = "@simpletrack";
+/// Where a sensor's name would be, the chunk of a vehicle's fused stream: a verbatim chunk,
+/// which `*` never matches (a `<prefix>/*/*/tracks` subscriber never hears fused tracks).
+pub const VEHICLE_STREAM: &str = "@vehicle";
 
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Keys {
@@ -34,12 +37,18 @@ impl Keys {
         format!("{}/{vehicle}/{sensor}/errors", self.prefix)
     }
 
+    /// `<prefix>/<vehicle>/@vehicle/tracks`: the vehicle's fused tracks (`*`: every vehicle).
+    pub fn vehicle_tracks(&self, vehicle: &str) -> String {
+        format!("{}/{vehicle}/{VEHICLE_STREAM}/tracks", self.prefix)
+    }
+
     /// The status queryable of `instance` (`*`: every instance).
     pub fn status(&self, instance: &str) -> String {
         format!("{}/{SERVICE_CHUNK}/{instance}/status", self.prefix)
     }
 
-    /// (vehicle, sensor) of a `<prefix>/<vehicle>/<sensor>/<leaf>` key.
+    /// (vehicle, sensor) of a `<prefix>/<vehicle>/<sensor>/<leaf>` key; a vehicle's fused
+    /// stream gives (vehicle, `VEHICLE_STREAM`).
     pub fn sensor_of<'k>(&self, key: &'k str) -> Option<(&'k str, &'k str)> {
         let rest = key.strip_prefix(self.prefix.as_str())?.strip_prefix('/')?;
         let mut parts = rest.split('/');

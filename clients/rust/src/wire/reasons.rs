@@ -4,8 +4,15 @@ use std::fmt;
 
 /// The schema version this crate reads and writes (`schema_version`).
 pub const SCHEMA_VERSION: u64 = 1;
-/// `TrackFrame` alone is at version 2 (covariance, ages in seconds); the decoder reads 1 and 2.
+/// `TrackFrame` is at version 2 (covariance, ages in seconds); the decoder reads 1 and 2.
 pub const TRACK_SCHEMA_VERSION: u64 = 2;
+/// `DetectionFrame` version 2 adds the optional `extrinsic`; the decoder reads 1 and 2, the
+/// encoder writes 2 only for a frame with an extrinsic.
+pub const DETECTION_SCHEMA_VERSION: u64 = 2;
+/// `ServiceStatus` version 2 adds the fused vehicles; the decoder reads 1 and 2.
+pub const STATUS_SCHEMA_VERSION: u64 = 2;
+/// `VehicleTrackFrame`, a message of its own, at its first version.
+pub const VEHICLE_TRACK_SCHEMA_VERSION: u64 = 1;
 
 /// Why a frame was not tracked (a `FrameError`'s `reason`), or why a decoder refused a payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -26,6 +33,10 @@ pub enum ErrorReason {
     SeqNotIncreasing,
     DuplicateSeq,
     TooManySensors,
+    /// A fused sensor's frame older than the vehicle's re-processing history.
+    Late,
+    /// A fused sensor flagged for its clock or extrinsic: its frames are kept out.
+    SensorFlagged,
     DroppedQueueFull,
     DroppedShutdown,
     Missed,
@@ -33,7 +44,7 @@ pub enum ErrorReason {
 }
 
 impl ErrorReason {
-    pub const ALL: [ErrorReason; 20] = [
+    pub const ALL: [ErrorReason; 22] = [
         Self::TooLarge,
         Self::Malformed,
         Self::WrongVersion,
@@ -50,6 +61,8 @@ impl ErrorReason {
         Self::SeqNotIncreasing,
         Self::DuplicateSeq,
         Self::TooManySensors,
+        Self::Late,
+        Self::SensorFlagged,
         Self::DroppedQueueFull,
         Self::DroppedShutdown,
         Self::Missed,
@@ -75,6 +88,8 @@ impl ErrorReason {
             Self::SeqNotIncreasing => "seq_not_increasing",
             Self::DuplicateSeq => "duplicate_seq",
             Self::TooManySensors => "too_many_sensors",
+            Self::Late => "late",
+            Self::SensorFlagged => "sensor_flagged",
             Self::DroppedQueueFull => "dropped_queue_full",
             Self::DroppedShutdown => "dropped_shutdown",
             Self::Missed => "missed",
@@ -120,5 +135,54 @@ impl TrackState {
             2 => Some(Self::Coasting),
             _ => None,
         }
+    }
+}
+
+/// A fused sensor's condition (`VehicleTrackFrame::sensor_state`, `FusedSensorStatus::state`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SensorCondition {
+    Ok,
+    /// Not yet verified against the others: updates tracks, starts none.
+    Probation,
+    /// No frame for a while.
+    Silent,
+    /// Its stamps are off: its frames are kept out.
+    Clock,
+    /// Its detections are offset from the vehicle's tracks: kept out.
+    Extrinsic,
+    /// Configured, never heard.
+    Unseen,
+}
+
+impl SensorCondition {
+    pub const ALL: [SensorCondition; 6] = [
+        Self::Ok,
+        Self::Probation,
+        Self::Silent,
+        Self::Clock,
+        Self::Extrinsic,
+        Self::Unseen,
+    ];
+
+    /// The string that travels.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Ok => "ok",
+            Self::Probation => "probation",
+            Self::Silent => "silent",
+            Self::Clock => "clock",
+            Self::Extrinsic => "extrinsic",
+            Self::Unseen => "unseen",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.as_str() == s)
+    }
+}
+
+impl fmt::Display for SensorCondition {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
     }
 }

@@ -15,6 +15,7 @@ fn frame() -> DetectionFrame {
         pose: None,
         key_frame: true,
         session_id: Some(12345),
+        extrinsic: None,
         boxes: BoxColumns::from_detections(
             &["Car", "Pedestrian"],
             &[
@@ -502,6 +503,8 @@ fn track_frame(version: u64) -> TrackFrame {
             covariance: (version == 2).then(|| vec![upper; n]),
             age_s: (version == 2).then(|| vec![0.4, 12.5]),
             time_since_update_s: (version == 2).then(|| vec![0.0, 0.1]),
+            existence: None,
+            sensor_stamp_ns: None,
         },
         schema_version: version,
     }

@@ -43,6 +43,13 @@ pub struct TrackColumns {
     pub age_s: Option<Vec<f64>>,
     /// Version 2: seconds from the last update to the frame's `stamp_ns`.
     pub time_since_update_s: Option<Vec<f64>>,
+    /// A vehicle's fused tracks only (`VehicleTrackFrame`): the probability in [0, 1] that
+    /// the track is an object. None in a sensor's `TrackFrame` (whose encoder ignores it).
+    pub existence: Option<Vec<f64>>,
+    /// A vehicle's fused tracks only: per track, one value per sensor of the frame's
+    /// `sensors` (in that order), the `stamp_ns` of that sensor's last update of the track,
+    /// -1 when it never updated it.
+    pub sensor_stamp_ns: Option<Vec<Vec<i64>>>,
 }
 
 /// Element (r, c), each 0 … 5, of a covariance kept as its upper triangle.
@@ -99,13 +106,23 @@ impl TrackFrame {
     }
 }
 
-struct RawTracks<'v> {
+/// Which columns a `tracks` map holds: a TrackFrame's of version 1 or 2, or a vehicle's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Layout {
+    V1,
+    V2,
+    Vehicle,
+}
+
+pub(crate) struct RawTracks<'v> {
     count: usize,
     classes: Vec<String>,
     columns: [&'v [u8]; 11],
     // Version 2's: covariance (optional), age_s, time_since_update_s.
     covariance: Option<&'v [u8]>,
     ages: Option<(&'v [u8], &'v [u8])>,
+    // A vehicle's: existence, sensor_stamp_ns.
+    fused: Option<(&'v [u8], &'v [u8])>,
 }
 
 const COLUMNS: [&str; 11] = [
@@ -122,19 +139,29 @@ const COLUMNS: [&str; 11] = [
     "time_since_update",
 ];
 
-fn raw_tracks<'v>(v: &'v V<'v>, version: u64) -> Checked<RawTracks<'v>> {
-    let mut f = Fields::new(v, "TrackColumns")?;
+/// The `tracks` map's fields in table order, then its unknown keys.
+pub(crate) fn raw_tracks<'v>(v: &'v V<'v>, layout: Layout) -> Checked<RawTracks<'v>> {
+    let type_name = match layout {
+        Layout::V1 => "TrackColumnsV1",
+        Layout::V2 => "TrackColumns",
+        Layout::Vehicle => "VehicleTrackColumns",
+    };
+    let mut f = Fields::new(v, type_name)?;
     let count = f.required("count", |v| integer(v, 0, i128::from(INT32_MAX)))? as usize;
     let classes = f.required("classes", classes)?;
     let mut columns: [&[u8]; 11] = [&[]; 11];
     for (slot, name) in columns.iter_mut().zip(COLUMNS) {
         *slot = f.required(name, binary)?;
     }
-    let (mut covariance, mut ages) = (None, None);
-    if version >= 2 {
+    let (mut covariance, mut ages, mut fused) = (None, None, None);
+    if layout != Layout::V1 {
         covariance = f.optional("covariance", None, |v| nullable(v, binary))?;
         let age_s = f.required("age_s", binary)?;
         ages = Some((age_s, f.required("time_since_update_s", binary)?));
+    }
+    if layout == Layout::Vehicle {
+        let existence = f.required("existence", binary)?;
+        fused = Some((existence, f.required("sensor_stamp_ns", binary)?));
     }
     f.finish()?;
     Ok(RawTracks {
@@ -143,7 +170,62 @@ fn raw_tracks<'v>(v: &'v V<'v>, version: u64) -> Checked<RawTracks<'v>> {
         columns,
         covariance,
         ages,
+        fused,
     })
+}
+
+/// The row cap, then each column's length and finiteness in table order; a vehicle's
+/// `sensor_stamp_ns` is `sensors` values wide.
+pub(crate) fn read_tracks(
+    raw: RawTracks<'_>,
+    limits: &DecodeLimits,
+    sensors: usize,
+) -> Checked<TrackColumns> {
+    let n = raw.count;
+    if n > limits.max_boxes {
+        return Err(Invalid::at(
+            ErrorReason::TooLarge,
+            "tracks.count",
+            format!("{n} rows exceeds the cap of {}", limits.max_boxes),
+        ));
+    }
+    let [id, class_index, center, size, yaw, score, velocity, state, hits, age, tsu] = raw.columns;
+    let mut tracks = TrackColumns {
+        id: from_bytes(id, n, "tracks.id")?,
+        class_index: from_bytes(class_index, n, "tracks.class_index")?,
+        center: from_bytes(center, n, "tracks.center")?,
+        size: from_bytes(size, n, "tracks.size")?,
+        yaw: from_bytes(yaw, n, "tracks.yaw")?,
+        score: from_bytes(score, n, "tracks.score")?,
+        velocity: from_bytes(velocity, n, "tracks.velocity")?,
+        state: from_bytes(state, n, "tracks.state")?,
+        hits: from_bytes(hits, n, "tracks.hits")?,
+        age: from_bytes(age, n, "tracks.age")?,
+        time_since_update: from_bytes(tsu, n, "tracks.time_since_update")?,
+        covariance: None,
+        age_s: None,
+        time_since_update_s: None,
+        existence: None,
+        sensor_stamp_ns: None,
+        classes: raw.classes,
+    };
+    if let Some(c) = raw.covariance {
+        tracks.covariance = Some(from_bytes(c, n, "tracks.covariance")?);
+    }
+    if let Some((a, t)) = raw.ages {
+        tracks.age_s = Some(from_bytes(a, n, "tracks.age_s")?);
+        tracks.time_since_update_s = Some(from_bytes(t, n, "tracks.time_since_update_s")?);
+    }
+    if let Some((e, stamps)) = raw.fused {
+        tracks.existence = Some(from_bytes(e, n, "tracks.existence")?);
+        // n is capped and sensors at most 64: the product cannot overflow.
+        let flat: Vec<i64> = from_bytes(stamps, n * sensors, "tracks.sensor_stamp_ns")?;
+        tracks.sensor_stamp_ns = Some(match sensors {
+            0 => vec![Vec::new(); n],
+            s => flat.chunks_exact(s).map(<[i64]>::to_vec).collect(),
+        });
+    }
+    Ok(tracks)
 }
 
 fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checked<TrackFrame> {
@@ -162,44 +244,14 @@ fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checke
     let instance = f.required("instance", name)?.to_owned();
     let received_ns = f.required("received_ns", int64)?;
     let published_ns = f.required("published_ns", int64)?;
-    let raw = f.required("tracks", |v| raw_tracks(v, schema_version))?;
-    f.finish()?;
-
-    let n = raw.count;
-    if n > limits.max_boxes {
-        return Err(Invalid::at(
-            ErrorReason::TooLarge,
-            "tracks.count",
-            format!("{n} rows exceeds the cap of {}", limits.max_boxes),
-        ));
-    }
-    let [id, class_index, center, size, yaw, score, velocity, state, hits, age, tsu] = raw.columns;
-    let tracks = TrackColumns {
-        id: from_bytes(id, n, "tracks.id")?,
-        class_index: from_bytes(class_index, n, "tracks.class_index")?,
-        center: from_bytes(center, n, "tracks.center")?,
-        size: from_bytes(size, n, "tracks.size")?,
-        yaw: from_bytes(yaw, n, "tracks.yaw")?,
-        score: from_bytes(score, n, "tracks.score")?,
-        velocity: from_bytes(velocity, n, "tracks.velocity")?,
-        state: from_bytes(state, n, "tracks.state")?,
-        hits: from_bytes(hits, n, "tracks.hits")?,
-        age: from_bytes(age, n, "tracks.age")?,
-        time_since_update: from_bytes(tsu, n, "tracks.time_since_update")?,
-        covariance: match raw.covariance {
-            Some(c) => Some(from_bytes(c, n, "tracks.covariance")?),
-            None => None,
-        },
-        age_s: match raw.ages {
-            Some((a, _)) => Some(from_bytes(a, n, "tracks.age_s")?),
-            None => None,
-        },
-        time_since_update_s: match raw.ages {
-            Some((_, t)) => Some(from_bytes(t, n, "tracks.time_since_update_s")?),
-            None => None,
-        },
-        classes: raw.classes,
+    let layout = if schema_version == 1 {
+        Layout::V1
+    } else {
+        Layout::V2
     };
+    let raw = f.required("tracks", |v| raw_tracks(v, layout))?;
+    f.finish()?;
+    let tracks = read_tracks(raw, limits, 0)?;
     Ok(TrackFrame {
         vehicle,
         sensor,
@@ -225,17 +277,9 @@ pub fn decode_track_frame(payload: &[u8], limits: &DecodeLimits) -> Result<Track
     decode_checked(&map, &value, limits).map_err(|e| e.into_rejection(seq, stamp_ns))
 }
 
-fn check_frame(t: &TrackFrame) -> Checked<()> {
-    check_name_field("vehicle", &t.vehicle)?;
-    check_name_field("sensor", &t.sensor)?;
-    check_int64_field("seq", t.seq)?;
-    check_int64_field("stamp_ns", t.stamp_ns)?;
-    super::fields::check_length(&t.frame_id, 1, Some(MAX_FRAME_ID))
-        .map_err(|e| e.within("frame_id"))?;
-    check_name_field("instance", &t.instance)?;
-    check_int64_field("received_ns", t.received_ns)?;
-    check_int64_field("published_ns", t.published_ns)?;
-    let c = &t.tracks;
+/// A columns map built in memory, checked as the decoder would: class table, row counts and
+/// finiteness (version 2's columns when `v2`).
+pub(crate) fn check_columns(c: &TrackColumns, v2: bool) -> Checked<()> {
     check_classes(&c.classes).map_err(|e| e.within("tracks"))?;
     let n = c.count();
     check_count(&c.class_index, n, "tracks.class_index")?;
@@ -253,25 +297,39 @@ fn check_frame(t: &TrackFrame) -> Checked<()> {
     check_finite(&c.yaw, "tracks.yaw")?;
     check_finite(&c.score, "tracks.score")?;
     check_finite(&c.velocity, "tracks.velocity")?;
+    if !v2 {
+        return Ok(());
+    }
+    let (Some(age_s), Some(tsu_s)) = (&c.age_s, &c.time_since_update_s) else {
+        return Err(Invalid::at(
+            ErrorReason::MissingField,
+            "tracks.age_s",
+            "version 2 columns need age_s and time_since_update_s",
+        ));
+    };
+    check_count(age_s, n, "tracks.age_s")?;
+    check_count(tsu_s, n, "tracks.time_since_update_s")?;
+    check_finite(age_s, "tracks.age_s")?;
+    check_finite(tsu_s, "tracks.time_since_update_s")?;
+    if let Some(cov) = &c.covariance {
+        check_count(cov, n, "tracks.covariance")?;
+        check_finite(cov, "tracks.covariance")?;
+    }
+    Ok(())
+}
+
+fn check_frame(t: &TrackFrame) -> Checked<()> {
+    check_name_field("vehicle", &t.vehicle)?;
+    check_name_field("sensor", &t.sensor)?;
+    check_int64_field("seq", t.seq)?;
+    check_int64_field("stamp_ns", t.stamp_ns)?;
+    super::fields::check_length(&t.frame_id, 1, Some(MAX_FRAME_ID))
+        .map_err(|e| e.within("frame_id"))?;
+    check_name_field("instance", &t.instance)?;
+    check_int64_field("received_ns", t.received_ns)?;
+    check_int64_field("published_ns", t.published_ns)?;
     match t.schema_version {
-        1 => {}
-        2 => {
-            let (Some(age_s), Some(tsu_s)) = (&c.age_s, &c.time_since_update_s) else {
-                return Err(Invalid::at(
-                    ErrorReason::MissingField,
-                    "tracks.age_s",
-                    "a version 2 TrackFrame needs age_s and time_since_update_s",
-                ));
-            };
-            check_count(age_s, n, "tracks.age_s")?;
-            check_count(tsu_s, n, "tracks.time_since_update_s")?;
-            check_finite(age_s, "tracks.age_s")?;
-            check_finite(tsu_s, "tracks.time_since_update_s")?;
-            if let Some(cov) = &c.covariance {
-                check_count(cov, n, "tracks.covariance")?;
-                check_finite(cov, "tracks.covariance")?;
-            }
-        }
+        1 | 2 => check_columns(&t.tracks, t.schema_version == 2)?,
         v => {
             return Err(Invalid::at(
                 ErrorReason::WrongVersion,
@@ -286,35 +344,15 @@ fn check_frame(t: &TrackFrame) -> Checked<()> {
     Ok(())
 }
 
-/// The frame as msgpack, byte for byte what the service writes (`pose` always present, nil
-/// when absent). Mostly for tests and tools: the service is what publishes tracks.
-pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
-    check_frame(t).map_err(|e| e.into_rejection(Some(t.seq), Some(t.stamp_ns)))?;
-    let c = &t.tracks;
-    let mut p = Packer::new(512 + c.count() * 88);
-    p.map(12);
-    p.key("schema_version").uint(t.schema_version);
-    p.key("vehicle").str(&t.vehicle);
-    p.key("sensor").str(&t.sensor);
-    p.key("seq").uint(t.seq);
-    p.key("stamp_ns").uint(t.stamp_ns);
-    p.key("frame_id").str(&t.frame_id);
-    match &t.pose {
-        Some(pose) => p.key("pose").f64s(pose),
-        None => p.key("pose").nil(),
+/// The `tracks` map: its keys in the reference encoder's order, version 2's (covariance only
+/// when present) after version 1's, then `extra` more (a vehicle's) the caller writes.
+pub(crate) fn write_columns(p: &mut Packer, c: &TrackColumns, v2: bool, extra: usize) {
+    let added = if v2 {
+        2 + usize::from(c.covariance.is_some())
+    } else {
+        0
     };
-    p.key("key_frame").bool(t.key_frame);
-    p.key("instance").str(&t.instance);
-    p.key("received_ns").uint(t.received_ns);
-    p.key("published_ns").uint(t.published_ns);
-    let v2 = t.schema_version == 2;
-    p.key("tracks").map(
-        13 + if v2 {
-            2 + usize::from(c.covariance.is_some())
-        } else {
-            0
-        },
-    );
+    p.map(13 + added + extra);
     p.key("count").uint(c.count() as u64);
     p.key("classes").strs(&c.classes);
     p.key("id").bin(&to_bytes(&c.id));
@@ -339,5 +377,31 @@ pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
             p.key("time_since_update_s").bin(&to_bytes(s));
         }
     }
+}
+
+/// The frame as msgpack, byte for byte what the service writes (`pose` always present, nil
+/// when absent). Mostly for tests and tools: the service is what publishes tracks. A vehicle's
+/// columns (`existence`, `sensor_stamp_ns`) are not part of a TrackFrame and are left out.
+pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
+    check_frame(t).map_err(|e| e.into_rejection(Some(t.seq), Some(t.stamp_ns)))?;
+    let c = &t.tracks;
+    let mut p = Packer::new(512 + c.count() * 88);
+    p.map(12);
+    p.key("schema_version").uint(t.schema_version);
+    p.key("vehicle").str(&t.vehicle);
+    p.key("sensor").str(&t.sensor);
+    p.key("seq").uint(t.seq);
+    p.key("stamp_ns").uint(t.stamp_ns);
+    p.key("frame_id").str(&t.frame_id);
+    match &t.pose {
+        Some(pose) => p.key("pose").f64s(pose),
+        None => p.key("pose").nil(),
+    };
+    p.key("key_frame").bool(t.key_frame);
+    p.key("instance").str(&t.instance);
+    p.key("received_ns").uint(t.received_ns);
+    p.key("published_ns").uint(t.published_ns);
+    p.key("tracks");
+    write_columns(&mut p, c, t.schema_version == 2, 0);
     Ok(p.finish())
 }

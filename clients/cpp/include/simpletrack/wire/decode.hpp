@@ -306,10 +306,11 @@ inline void check_list(const Obj& v, const std::string& path, std::size_t max_it
   }
 }
 
-inline std::optional<Pose> pose_field(const Fields& m) {
-  const Obj* v = optional(m, "pose");
+// A 4x4 transform's field (`pose`, `extrinsic`): nil or absent, else a list of 16 numbers.
+inline std::optional<Pose> transform_field(const Fields& m, std::string_view name) {
+  const Obj* v = optional(m, name);
   if (!v) return std::nullopt;
-  const std::string path = m.path("pose");
+  const std::string path = m.path(name);
   check_list(*v, path, 16);
   Pose pose{};
   const auto& a = v->via.array;
@@ -336,6 +337,10 @@ inline std::optional<Pose> pose_field(const Fields& m) {
            "List should have at least 16 items after validation, not " + std::to_string(a.size));
   }
   return pose;
+}
+
+inline std::optional<Pose> pose_field(const Fields& m) {
+  return transform_field(m, "pose");
 }
 
 inline std::vector<std::string> classes_field(const Fields& m) {
@@ -426,10 +431,11 @@ void check_bound(const std::vector<T>& rows, double bound, const std::string& pa
   }
 }
 
-// Step 10: a pose must be finite, a rigid transform, and translate within the bounds.
-inline void check_pose(const Pose& p) {
+// Step 10: a pose (or an extrinsic, named by `field`) must be finite, a rigid transform, and
+// translate within the bounds.
+inline void check_pose(const Pose& p, const std::string& field = "pose") {
   for (const double v : p) {
-    if (!std::isfinite(v)) reject(Reason::non_finite, "pose", "NaN or inf in the pose");
+    if (!std::isfinite(v)) reject(Reason::non_finite, field, "NaN or inf in the " + field);
   }
   double err =
       std::max({std::fabs(p[12]), std::fabs(p[13]), std::fabs(p[14]), std::fabs(p[15] - 1.0)});
@@ -443,10 +449,10 @@ inline void check_pose(const Pose& p) {
   const double det = p[0] * (p[5] * p[10] - p[6] * p[9]) - p[1] * (p[4] * p[10] - p[6] * p[8]) +
                      p[2] * (p[4] * p[9] - p[5] * p[8]);
   if (!(err <= kPoseTolerance) || !(det > 0)) {
-    reject(Reason::invalid_value, "pose", "not a rigid transform (row-major 4x4)");
+    reject(Reason::invalid_value, field, "not a rigid transform (row-major 4x4)");
   }
   if (std::max({std::fabs(p[3]), std::fabs(p[7]), std::fabs(p[11])}) > kMaxCoordinateM) {
-    reject(Reason::invalid_value, "pose", "translation over " + format_g(kMaxCoordinateM) + " m");
+    reject(Reason::invalid_value, field, "translation over " + format_g(kMaxCoordinateM) + " m");
   }
 }
 
@@ -502,6 +508,105 @@ inline Header header_fields(const Fields& top) {
   return h;
 }
 
+// Which columns a `tracks` map holds: a TrackFrame's of version 1 or 2, or a vehicle's.
+enum class Layout { v1, v2, vehicle };
+
+// A `tracks` map once its fields passed: the bins, read into columns by read_tracks.
+struct TrackBins {
+  std::size_t count = 0;
+  std::vector<std::string> classes;
+  std::string_view columns[11];
+  bool has_covariance = false;
+  std::string_view covariance, age_s, time_since_update_s, existence, sensor_stamp_ns;
+};
+
+// The `tracks` map's fields in table order, then its unknown keys.
+inline TrackBins track_bins(const Fields& tracks, Layout layout) {
+  static constexpr std::string_view kColumns[] = {
+      "id",   "class_index", "center",           "size", "yaw", "score", "velocity", "state",
+      "hits", "age",         "time_since_update"};
+  TrackBins b;
+  b.count = int_value(required(tracks, "count"), "tracks.count", kInt32Max);
+  b.classes = classes_field(tracks);
+  for (std::size_t i = 0; i < std::size(kColumns); ++i) {
+    b.columns[i] = bin_value(required(tracks, kColumns[i]), tracks.path(kColumns[i]));
+  }
+  // Version 2's columns, checked after version 1's as the field table orders them.
+  if (layout != Layout::v1) {
+    if (const Obj* c = optional(tracks, "covariance")) {
+      b.has_covariance = true;
+      b.covariance = bin_value(*c, "tracks.covariance");
+    }
+    b.age_s = bin_value(required(tracks, "age_s"), "tracks.age_s");
+    b.time_since_update_s =
+        bin_value(required(tracks, "time_since_update_s"), "tracks.time_since_update_s");
+  }
+  if (layout == Layout::vehicle) {
+    b.existence = bin_value(required(tracks, "existence"), "tracks.existence");
+    b.sensor_stamp_ns = bin_value(required(tracks, "sensor_stamp_ns"), "tracks.sensor_stamp_ns");
+  }
+  switch (layout) {
+    case Layout::v1:
+      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
+                             "score", "velocity", "state", "hits", "age", "time_since_update"});
+      break;
+    case Layout::v2:
+      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
+                             "score", "velocity", "state", "hits", "age", "time_since_update",
+                             "covariance", "age_s", "time_since_update_s"});
+      break;
+    case Layout::vehicle:
+      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
+                             "score", "velocity", "state", "hits", "age", "time_since_update",
+                             "covariance", "age_s", "time_since_update_s", "existence",
+                             "sensor_stamp_ns"});
+      break;
+  }
+  return b;
+}
+
+// The row cap, then each column's length and finiteness in table order; a vehicle's
+// sensor_stamp_ns holds `sensors` values per row.
+inline TrackColumns read_tracks(const TrackBins& b, Layout layout, const DecodeLimits& limits,
+                                std::size_t sensors) {
+  const std::size_t count = b.count;
+  if (count > limits.max_boxes) {
+    reject(Reason::too_large, "tracks.count",
+           std::to_string(count) + " rows exceeds the cap of " + std::to_string(limits.max_boxes));
+  }
+  TrackColumns t;
+  t.classes = b.classes;
+  t.id = values_of<std::int64_t>(b.columns[0], count, "tracks.id");
+  t.class_index = values_of<std::int32_t>(b.columns[1], count, "tracks.class_index");
+  t.center = rows_of<float, 3>(b.columns[2], count, "tracks.center");
+  t.size = rows_of<float, 3>(b.columns[3], count, "tracks.size");
+  t.yaw = values_of<float>(b.columns[4], count, "tracks.yaw");
+  t.score = values_of<double>(b.columns[5], count, "tracks.score");
+  t.velocity = rows_of<float, 3>(b.columns[6], count, "tracks.velocity");
+  t.state = values_of<std::int32_t>(b.columns[7], count, "tracks.state");
+  t.hits = values_of<std::int32_t>(b.columns[8], count, "tracks.hits");
+  t.age = values_of<std::int32_t>(b.columns[9], count, "tracks.age");
+  t.time_since_update = values_of<std::int32_t>(b.columns[10], count, "tracks.time_since_update");
+  if (b.has_covariance) t.covariance = rows_of<float, 21>(b.covariance, count, "tracks.covariance");
+  if (layout != Layout::v1) {
+    t.age_s = values_of<double>(b.age_s, count, "tracks.age_s");
+    t.time_since_update_s =
+        values_of<double>(b.time_since_update_s, count, "tracks.time_since_update_s");
+  }
+  if (layout == Layout::vehicle) {
+    t.existence = values_of<double>(b.existence, count, "tracks.existence");
+    // count is capped and sensors at most 64: the product cannot overflow.
+    const auto flat =
+        values_of<std::int64_t>(b.sensor_stamp_ns, count * sensors, "tracks.sensor_stamp_ns");
+    t.sensor_stamp_ns.emplace(count);
+    for (std::size_t i = 0; i < count; ++i) {
+      const auto row = flat.begin() + static_cast<std::ptrdiff_t>(i * sensors);
+      (*t.sensor_stamp_ns)[i].assign(row, row + static_cast<std::ptrdiff_t>(sensors));
+    }
+  }
+  return t;
+}
+
 inline Rejection internal_error(const char* what) {
   std::string detail = std::string("decoder bug: ") + what;
   truncate_utf8(detail, 300);
@@ -522,8 +627,9 @@ inline Result<DetectionFrame> decode_detection_frame(
     const msgpack::object_handle handle = unpack(data, size, limits);
     const Fields top(handle.get(), "");
     peek = {peek_int(top, "seq"), peek_int(top, "stamp_ns")};
-    check_version(top);
+    const int version = check_version(top, kSchemaVersion, kDetectionSchemaVersion);
     DetectionFrame f;
+    f.schema_version = version;
     Header h = header_fields(top);
     f.vehicle = std::move(h.vehicle), f.sensor = std::move(h.sensor);
     f.seq = h.seq, f.stamp_ns = h.stamp_ns, f.frame_id = std::move(h.frame_id);
@@ -543,8 +649,14 @@ inline Result<DetectionFrame> decode_detection_frame(
     const std::string_view velocity_bin = velocity ? bin_value(*velocity, "boxes.velocity") : "";
     boxes.refuse_unknown(
         {"count", "classes", "class_index", "center", "size", "yaw", "score", "velocity"});
-    top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
-                        "pose", "key_frame", "session_id", "boxes"});
+    if (version == 2) {
+      f.extrinsic = transform_field(top, "extrinsic");
+      top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
+                          "pose", "key_frame", "session_id", "boxes", "extrinsic"});
+    } else {  // then an extrinsic is an unknown key, as to a version-1 reader
+      top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
+                          "pose", "key_frame", "session_id", "boxes"});
+    }
 
     if (count > limits.max_boxes) {
       reject(
@@ -575,6 +687,7 @@ inline Result<DetectionFrame> decode_detection_frame(
     check_bound(b.yaw, kMaxYawRad, "boxes.yaw", "rad");
     if (b.velocity) check_bound(*b.velocity, kMaxSpeedMps, "boxes.velocity", "m/s");
     if (f.pose) check_pose(*f.pose);
+    if (f.extrinsic) check_pose(*f.extrinsic, "extrinsic");
 
     if (accepted_classes) {
       for (const std::int32_t i : b.class_index) {
@@ -617,56 +730,12 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     f.received_ns = int64_field(top, "received_ns");
     f.published_ns = int64_field(top, "published_ns");
 
+    const Layout layout = version == 1 ? Layout::v1 : Layout::v2;
     const Fields tracks(map_field(top, "tracks", "TrackColumns"), "tracks.");
-    const std::size_t count = int_value(required(tracks, "count"), "tracks.count", kInt32Max);
-    TrackColumns& t = f.tracks;
-    t.classes = classes_field(tracks);
-    static constexpr std::string_view kColumns[] = {
-        "id",   "class_index", "center",           "size", "yaw", "score", "velocity", "state",
-        "hits", "age",         "time_since_update"};
-    std::string_view bins[std::size(kColumns)];
-    for (std::size_t i = 0; i < std::size(kColumns); ++i) {
-      bins[i] = bin_value(required(tracks, kColumns[i]), tracks.path(kColumns[i]));
-    }
-    // Version 2's columns, checked after version 1's as the field table orders them.
-    const Obj* covariance = nullptr;
-    std::string_view covariance_bin, age_s_bin, tsu_s_bin;
-    if (version == 2) {
-      covariance = optional(tracks, "covariance");
-      if (covariance) covariance_bin = bin_value(*covariance, "tracks.covariance");
-      age_s_bin = bin_value(required(tracks, "age_s"), "tracks.age_s");
-      tsu_s_bin = bin_value(required(tracks, "time_since_update_s"), "tracks.time_since_update_s");
-      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
-                             "score", "velocity", "state", "hits", "age", "time_since_update",
-                             "covariance", "age_s", "time_since_update_s"});
-    } else {
-      tracks.refuse_unknown({"count", "classes", "id", "class_index", "center", "size", "yaw",
-                             "score", "velocity", "state", "hits", "age", "time_since_update"});
-    }
+    const TrackBins bins = track_bins(tracks, layout);
     top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
                         "pose", "key_frame", "instance", "received_ns", "published_ns", "tracks"});
-
-    if (count > limits.max_boxes) {
-      reject(
-          Reason::too_large, "tracks.count",
-          std::to_string(count) + " rows exceeds the cap of " + std::to_string(limits.max_boxes));
-    }
-    t.id = values_of<std::int64_t>(bins[0], count, "tracks.id");
-    t.class_index = values_of<std::int32_t>(bins[1], count, "tracks.class_index");
-    t.center = rows_of<float, 3>(bins[2], count, "tracks.center");
-    t.size = rows_of<float, 3>(bins[3], count, "tracks.size");
-    t.yaw = values_of<float>(bins[4], count, "tracks.yaw");
-    t.score = values_of<double>(bins[5], count, "tracks.score");
-    t.velocity = rows_of<float, 3>(bins[6], count, "tracks.velocity");
-    t.state = values_of<std::int32_t>(bins[7], count, "tracks.state");
-    t.hits = values_of<std::int32_t>(bins[8], count, "tracks.hits");
-    t.age = values_of<std::int32_t>(bins[9], count, "tracks.age");
-    t.time_since_update = values_of<std::int32_t>(bins[10], count, "tracks.time_since_update");
-    if (covariance) t.covariance = rows_of<float, 21>(covariance_bin, count, "tracks.covariance");
-    if (version == 2) {
-      t.age_s = values_of<double>(age_s_bin, count, "tracks.age_s");
-      t.time_since_update_s = values_of<double>(tsu_s_bin, count, "tracks.time_since_update_s");
-    }
+    f.tracks = read_tracks(bins, layout, limits, 0);
     return f;
   } catch (const Reject& r) {
     return Rejection{r.reason, r.field, r.detail, peek.seq, peek.stamp_ns};

@@ -177,11 +177,18 @@ inline std::vector<std::uint8_t> encode(const DetectionFrame& f) {
   check_rows("DetectionFrame.boxes.yaw", b.yaw, n);
   check_rows("DetectionFrame.boxes.score", b.score, n);
   if (b.velocity) check_rows("DetectionFrame.boxes.velocity", *b.velocity, n);
+  const int version = f.version();
+  if (version != 1 && version != 2) {
+    refuse("DetectionFrame.schema_version", std::to_string(version) + " is not one of 1, 2");
+  }
+  if (version == 1 && f.extrinsic) {
+    refuse("DetectionFrame.extrinsic", "a version 1 DetectionFrame has no extrinsic");
+  }
 
   Writer w;
-  // The reference encoder puts the optional pose and session_id after boxes.
-  w.map(8 + (f.pose ? 1 : 0) + (f.session_id ? 1 : 0));
-  w.key("schema_version").uint(kSchemaVersion);
+  // The reference encoder puts the optional pose, session_id and extrinsic after boxes.
+  w.map(8 + (f.pose ? 1 : 0) + (f.session_id ? 1 : 0) + (f.extrinsic ? 1 : 0));
+  w.key("schema_version").uint(static_cast<std::uint64_t>(version));
   w.key("vehicle").str(f.vehicle);
   w.key("sensor").str(f.sensor);
   w.key("seq").uint(f.seq);
@@ -200,40 +207,81 @@ inline std::vector<std::uint8_t> encode(const DetectionFrame& f) {
   if (b.velocity) w.key("velocity").column(*b.velocity);
   if (f.pose) w.key("pose").pose(f.pose);
   if (f.session_id) w.key("session_id").uint(*f.session_id);
+  if (f.extrinsic) w.key("extrinsic").pose(f.extrinsic);
   return w.take();
 }
 
+namespace detail {
+
+// The row counts of a `tracks` map built in memory (version 2's columns when `v2`), each named
+// `<message>.tracks.<column>` in a refusal.
+inline void check_track_columns(const std::string& message, const TrackColumns& t, bool v2) {
+  const std::size_t n = t.count();
+  const std::string m = message + ".tracks.";
+  if (n > kInt32Max) refuse(m + "count", std::to_string(n) + " is over 2^31-1");
+  check_classes(m + "classes", t.classes);
+  check_rows(m + "class_index", t.class_index, n);
+  check_rows(m + "center", t.center, n);
+  check_rows(m + "size", t.size, n);
+  check_rows(m + "yaw", t.yaw, n);
+  check_rows(m + "score", t.score, n);
+  check_rows(m + "velocity", t.velocity, n);
+  check_rows(m + "state", t.state, n);
+  check_rows(m + "hits", t.hits, n);
+  check_rows(m + "age", t.age, n);
+  check_rows(m + "time_since_update", t.time_since_update, n);
+  if (!v2) return;
+  if (!t.age_s || !t.time_since_update_s) refuse(m + "age_s", "version 2 columns need both ages");
+  check_rows(m + "age_s", *t.age_s, n);
+  check_rows(m + "time_since_update_s", *t.time_since_update_s, n);
+  if (t.covariance) check_rows(m + "covariance", *t.covariance, n);
+}
+
+// The columns of a `tracks` map in the reference encoder's order, after a map header for them
+// and `extra` more entries the caller writes: version 1's, then version 2's when `v2`
+// (covariance only when present).
+inline void write_track_columns(Writer& w, const TrackColumns& t, bool v2, std::size_t extra) {
+  w.map(13 + (v2 ? (t.covariance ? 3 : 2) : 0) + extra);
+  w.key("count").uint(t.count());
+  w.key("classes").classes(t.classes);
+  w.key("id").column(t.id);
+  w.key("class_index").column(t.class_index);
+  w.key("center").column(t.center);
+  w.key("size").column(t.size);
+  w.key("yaw").column(t.yaw);
+  w.key("score").column(t.score);
+  w.key("velocity").column(t.velocity);
+  w.key("state").column(t.state);
+  w.key("hits").column(t.hits);
+  w.key("age").column(t.age);
+  w.key("time_since_update").column(t.time_since_update);
+  if (v2) {  // version 1 leaves them out: the bytes a version-1 reader takes
+    if (t.covariance) w.key("covariance").column(*t.covariance);
+    w.key("age_s").column(*t.age_s);
+    w.key("time_since_update_s").column(*t.time_since_update_s);
+  }
+}
+
+}  // namespace detail
+
+// A sensor's TrackFrame; a vehicle's columns (existence, sensor_stamp_ns) are not part of it
+// and are left out.
 inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   using namespace detail;
   const TrackColumns& t = f.tracks;
-  const std::size_t n = t.count();
   check_header("TrackFrame", f.vehicle, f.sensor, f.seq, f.stamp_ns, f.frame_id);
   check_name("TrackFrame.instance", f.instance);
   check_int64("TrackFrame.received_ns", f.received_ns);
   check_int64("TrackFrame.published_ns", f.published_ns);
-  if (n > kInt32Max) refuse("TrackFrame.tracks.count", std::to_string(n) + " is over 2^31-1");
-  check_classes("TrackFrame.tracks.classes", t.classes);
-  check_rows("TrackFrame.tracks.class_index", t.class_index, n);
-  check_rows("TrackFrame.tracks.center", t.center, n);
-  check_rows("TrackFrame.tracks.size", t.size, n);
-  check_rows("TrackFrame.tracks.yaw", t.yaw, n);
-  check_rows("TrackFrame.tracks.score", t.score, n);
-  check_rows("TrackFrame.tracks.velocity", t.velocity, n);
-  check_rows("TrackFrame.tracks.state", t.state, n);
-  check_rows("TrackFrame.tracks.hits", t.hits, n);
-  check_rows("TrackFrame.tracks.age", t.age, n);
-  check_rows("TrackFrame.tracks.time_since_update", t.time_since_update, n);
   const bool has_ages = t.age_s && t.time_since_update_s;
   const int version = f.schema_version.value_or(has_ages ? kTrackSchemaVersion : 1);
   if (version != 1 && version != 2) {
     refuse("TrackFrame.schema_version", std::to_string(version) + " is not one of 1, 2");
   }
-  if (version == 2) {
-    if (!has_ages) refuse("TrackFrame.tracks.age_s", "a version 2 TrackFrame needs both ages");
-    check_rows("TrackFrame.tracks.age_s", *t.age_s, n);
-    check_rows("TrackFrame.tracks.time_since_update_s", *t.time_since_update_s, n);
-    if (t.covariance) check_rows("TrackFrame.tracks.covariance", *t.covariance, n);
+  if (version == 2 && !has_ages) {
+    refuse("TrackFrame.tracks.age_s", "a version 2 TrackFrame needs both ages");
   }
+  check_track_columns("TrackFrame", t, version == 2);
 
   Writer w;
   w.map(12);
@@ -249,25 +297,7 @@ inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   w.key("received_ns").uint(f.received_ns);
   w.key("published_ns").uint(f.published_ns);
   w.key("tracks");
-  w.map(version == 1 ? 13 : t.covariance ? 16 : 15);
-  w.key("count").uint(n);
-  w.key("classes").classes(t.classes);
-  w.key("id").column(t.id);
-  w.key("class_index").column(t.class_index);
-  w.key("center").column(t.center);
-  w.key("size").column(t.size);
-  w.key("yaw").column(t.yaw);
-  w.key("score").column(t.score);
-  w.key("velocity").column(t.velocity);
-  w.key("state").column(t.state);
-  w.key("hits").column(t.hits);
-  w.key("age").column(t.age);
-  w.key("time_since_update").column(t.time_since_update);
-  if (version == 2) {  // version 1 leaves them out: the bytes a version-1 reader takes
-    if (t.covariance) w.key("covariance").column(*t.covariance);
-    w.key("age_s").column(*t.age_s);
-    w.key("time_since_update_s").column(*t.time_since_update_s);
-  }
+  write_track_columns(w, t, version == 2, 0);
   return w.take();
 }
 

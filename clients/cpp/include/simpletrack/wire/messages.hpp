@@ -1,5 +1,5 @@
-// The wire messages of schemas/README.md (schema version 1) as plain C++17 structs, the
-// reasons a message is refused, and the result type the decoders return.
+// The wire messages of schemas/README.md as plain C++17 structs, the reasons a message is
+// refused, and the result type the decoders return.
 #pragma once
 
 #include <array>
@@ -16,9 +16,18 @@
 namespace simpletrack::wire {
 
 inline constexpr int kSchemaVersion = 1;
-// TrackFrame alone is at version 2 (covariance, ages in seconds); decode_track_frame reads
+// TrackFrame is at version 2 (covariance, ages in seconds); decode_track_frame reads
 // 1 and 2 (schemas/README.md, "Versioning").
 inline constexpr int kTrackSchemaVersion = 2;
+// DetectionFrame version 2 adds the optional extrinsic; decode_detection_frame reads 1 and 2,
+// encode writes 2 only for a frame with an extrinsic.
+inline constexpr int kDetectionSchemaVersion = 2;
+// VehicleTrackFrame, a vehicle's fused tracks, is a message of its own at its version 1.
+inline constexpr int kVehicleTrackSchemaVersion = 1;
+// Where a sensor's name would be in a key, the chunk of a vehicle's fused stream
+// (`<prefix>/<vehicle>/@vehicle/tracks`): verbatim, so `*` never matches it.
+inline constexpr std::string_view kVehicleStream = "@vehicle";
+inline constexpr std::size_t kMaxFusedSensors = 64;
 
 // Ranges and caps of the contract ("DetectionFrame", "Bounds" in schemas/README.md).
 inline constexpr std::uint64_t kInt64Max = 9223372036854775807ULL;
@@ -50,18 +59,21 @@ enum class Reason {
   seq_not_increasing,
   duplicate_seq,
   too_many_sensors,
+  late,            // a fused sensor's frame older than the vehicle's re-processing history
+  sensor_flagged,  // a fused sensor flagged for its clock or extrinsic: its frames kept out
   dropped_queue_full,
   dropped_shutdown,
   missed,
   internal_error,
 };
 
-inline constexpr std::array<std::string_view, 20> kReasonNames = {
-    "too_large",          "malformed",          "wrong_version", "missing_field",
-    "extra_field",        "wrong_type",         "invalid_value", "column_length",
-    "non_finite",         "non_positive_size",  "unknown_class", "key_mismatch",
-    "out_of_order",       "seq_not_increasing", "duplicate_seq", "too_many_sensors",
-    "dropped_queue_full", "dropped_shutdown",   "missed",        "internal_error",
+inline constexpr std::array<std::string_view, 22> kReasonNames = {
+    "too_large",    "malformed",          "wrong_version",      "missing_field",
+    "extra_field",  "wrong_type",         "invalid_value",      "column_length",
+    "non_finite",   "non_positive_size",  "unknown_class",      "key_mismatch",
+    "out_of_order", "seq_not_increasing", "duplicate_seq",      "too_many_sensors",
+    "late",         "sensor_flagged",     "dropped_queue_full", "dropped_shutdown",
+    "missed",       "internal_error",
 };
 
 constexpr std::string_view to_string(Reason r) {
@@ -71,6 +83,31 @@ constexpr std::string_view to_string(Reason r) {
 inline std::optional<Reason> parse_reason(std::string_view name) {
   for (std::size_t i = 0; i < kReasonNames.size(); ++i) {
     if (kReasonNames[i] == name) return static_cast<Reason>(i);
+  }
+  return std::nullopt;
+}
+
+// A fused sensor's condition (VehicleTrackFrame::sensor_state), in the order of
+// simpletrack/wire/reasons.py's SensorCondition.
+enum class SensorCondition {
+  ok,
+  probation,  // not yet verified against the others: updates tracks, starts none
+  silent,     // no frame for a while
+  clock,      // its stamps are off: its frames are kept out
+  extrinsic,  // its detections are offset from the vehicle's tracks: kept out
+  unseen,     // configured, never heard
+};
+
+inline constexpr std::array<std::string_view, 6> kSensorConditionNames = {
+    "ok", "probation", "silent", "clock", "extrinsic", "unseen"};
+
+constexpr std::string_view to_string(SensorCondition c) {
+  return kSensorConditionNames[static_cast<std::size_t>(c)];
+}
+
+inline std::optional<SensorCondition> parse_sensor_condition(std::string_view name) {
+  for (std::size_t i = 0; i < kSensorConditionNames.size(); ++i) {
+    if (kSensorConditionNames[i] == name) return static_cast<SensorCondition>(i);
   }
   return std::nullopt;
 }
@@ -107,6 +144,15 @@ struct DetectionFrame {
   bool key_frame = true;
   std::optional<std::uint64_t> session_id;
   BoxColumns boxes;
+  // Version 2: the sensor's mounting, sensor -> vehicle, 4x4 row-major; a vehicle whose
+  // sensors the service fuses needs it.
+  std::optional<Pose> extrinsic;
+  // What encode writes: nullopt = 2 with an extrinsic, else 1 (the bytes of before version
+  // 2). decode_detection_frame sets the version it read, so a frame re-encodes as it came.
+  std::optional<int> schema_version;
+
+  // The version encode writes (what == compares: nullopt is the default for the content).
+  int version() const { return schema_version.value_or(extrinsic ? 2 : 1); }
 };
 
 struct TrackColumns {
@@ -128,6 +174,12 @@ struct TrackColumns {
   std::optional<std::vector<std::array<float, 21>>> covariance;
   std::optional<std::vector<double>> age_s;
   std::optional<std::vector<double>> time_since_update_s;
+  // A vehicle's fused tracks only (VehicleTrackFrame; a TrackFrame's encoder leaves them
+  // out): the probability in [0, 1] that the track is an object, and per track one value
+  // per sensor of the frame's `sensors`, the stamp_ns of that sensor's last update of the
+  // track, -1 when it never updated it.
+  std::optional<std::vector<double>> existence;
+  std::optional<std::vector<std::vector<std::int64_t>>> sensor_stamp_ns;
 
   std::size_t count() const { return id.size(); }
 };
@@ -161,6 +213,44 @@ struct TrackFrame {
   }
 };
 
+// `<prefix>/<vehicle>/@vehicle/tracks`: a vehicle's fused tracks, one tracker fed by its
+// sensors. (vehicle, seq, stamp_ns) identify a message: a repeat carries the same three.
+struct VehicleTrackFrame {
+  std::string vehicle;
+  std::uint64_t seq = 0;       // the vehicle stream's counter, +1 per message
+  std::uint64_t stamp_ns = 0;  // the time every box is at: the producing frame's stamp
+  std::string sensor;          // the sensor whose frame produced this message
+  std::uint64_t sensor_seq = 0;
+  std::string
+      frame_id;  // the world frame when the vehicle's frames carry poses, else the vehicle's
+  std::optional<Pose> pose;  // the producing frame's, echoed
+  std::string instance;
+  std::uint64_t received_ns = 0;
+  std::uint64_t published_ns = 0;
+  std::vector<std::string> sensors;  // unique; the order of sensor_state and of each
+                                     // tracks.sensor_stamp_ns row
+  std::vector<SensorCondition> sensor_state;
+  TrackColumns tracks;  // version 2's columns, existence and sensor_stamp_ns
+
+  // The track's fleet-unique id "<vehicle>/@vehicle/<id>" (schemas/README.md, "Track identity").
+  std::string global_id(std::size_t i) const {
+    return vehicle + "/" + std::string(kVehicleStream) + "/" + std::to_string(tracks.id.at(i));
+  }
+
+  // stamp_ns of sensor `name`'s last update of track i; nullopt when it never updated it or is
+  // not one of `sensors`.
+  std::optional<std::uint64_t> last_update_ns(std::size_t i, std::string_view name) const {
+    if (!tracks.sensor_stamp_ns) return std::nullopt;
+    for (std::size_t j = 0; j < sensors.size(); ++j) {
+      if (sensors[j] != name) continue;
+      const std::int64_t stamp = tracks.sensor_stamp_ns->at(i).at(j);
+      if (stamp < 0) return std::nullopt;
+      return static_cast<std::uint64_t>(stamp);
+    }
+    return std::nullopt;
+  }
+};
+
 // `<prefix>/<vehicle>/<sensor>/errors`
 struct FrameError {
   std::string vehicle;
@@ -183,14 +273,16 @@ inline bool operator==(const BoxColumns& a, const BoxColumns& b) {
 inline bool operator==(const DetectionFrame& a, const DetectionFrame& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
          a.stamp_ns == b.stamp_ns && a.frame_id == b.frame_id && a.pose == b.pose &&
-         a.key_frame == b.key_frame && a.session_id == b.session_id && a.boxes == b.boxes;
+         a.key_frame == b.key_frame && a.session_id == b.session_id && a.boxes == b.boxes &&
+         a.extrinsic == b.extrinsic && a.version() == b.version();
 }
 inline bool operator==(const TrackColumns& a, const TrackColumns& b) {
   return a.classes == b.classes && a.id == b.id && a.class_index == b.class_index &&
          a.center == b.center && a.size == b.size && a.yaw == b.yaw && a.score == b.score &&
          a.velocity == b.velocity && a.state == b.state && a.hits == b.hits && a.age == b.age &&
          a.time_since_update == b.time_since_update && a.covariance == b.covariance &&
-         a.age_s == b.age_s && a.time_since_update_s == b.time_since_update_s;
+         a.age_s == b.age_s && a.time_since_update_s == b.time_since_update_s &&
+         a.existence == b.existence && a.sensor_stamp_ns == b.sensor_stamp_ns;
 }
 inline bool operator==(const TrackFrame& a, const TrackFrame& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
@@ -198,6 +290,13 @@ inline bool operator==(const TrackFrame& a, const TrackFrame& b) {
          a.key_frame == b.key_frame && a.instance == b.instance && a.received_ns == b.received_ns &&
          a.published_ns == b.published_ns && a.tracks == b.tracks &&
          a.schema_version == b.schema_version;
+}
+inline bool operator==(const VehicleTrackFrame& a, const VehicleTrackFrame& b) {
+  return a.vehicle == b.vehicle && a.seq == b.seq && a.stamp_ns == b.stamp_ns &&
+         a.sensor == b.sensor && a.sensor_seq == b.sensor_seq && a.frame_id == b.frame_id &&
+         a.pose == b.pose && a.instance == b.instance && a.received_ns == b.received_ns &&
+         a.published_ns == b.published_ns && a.sensors == b.sensors &&
+         a.sensor_state == b.sensor_state && a.tracks == b.tracks;
 }
 inline bool operator==(const FrameError& a, const FrameError& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
@@ -215,6 +314,9 @@ inline bool operator!=(const TrackColumns& a, const TrackColumns& b) {
   return !(a == b);
 }
 inline bool operator!=(const TrackFrame& a, const TrackFrame& b) {
+  return !(a == b);
+}
+inline bool operator!=(const VehicleTrackFrame& a, const VehicleTrackFrame& b) {
   return !(a == b);
 }
 inline bool operator!=(const FrameError& a, const FrameError& b) {

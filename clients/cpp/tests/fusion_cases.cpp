@@ -1,0 +1,232 @@
+// Vehicle fusion on the wire: a detection frame's extrinsic (DetectionFrame version 2), a
+// vehicle's fused tracks (VehicleTrackFrame) and the reasons that come with them.
+#include <simpletrack/wire.hpp>
+
+#include <cstdint>
+#include <cstring>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "check.hpp"
+
+namespace wire = simpletrack::wire;
+using Bytes = std::vector<std::uint8_t>;
+
+namespace {
+
+const wire::Pose kRear{-1, 0, 0, -3.5, 0, -1, 0, 0, 0, 0, 1, 0.5, 0, 0, 0, 1};
+
+wire::DetectionFrame radar_frame() {
+  wire::DetectionFrame f;
+  f.vehicle = "veh-1", f.sensor = "radar", f.seq = 3, f.frame_id = "radar";
+  f.stamp_ns = 1'700'000'000'000'000'000ULL;
+  f.boxes.classes = {"Car"};
+  f.boxes.class_index = {0};
+  f.boxes.center = {{1.0f, 2.0f, 0.5f}};
+  f.boxes.size = {{4.0f, 2.0f, 1.5f}};
+  f.boxes.yaw = {0.1f};
+  f.boxes.score = {0.9};
+  return f;
+}
+
+// A msgpack map re-packed with one entry's value replaced (or added) by `write`.
+Bytes with_entry(const Bytes& payload, const std::string& key,
+                 const std::function<void(msgpack::packer<msgpack::sbuffer>&)>& write,
+                 const std::string& inside = "") {
+  const msgpack::object_handle h =
+      msgpack::unpack(reinterpret_cast<const char*>(payload.data()), payload.size());
+  msgpack::sbuffer sb;
+  msgpack::packer<msgpack::sbuffer> pk(sb);
+  std::function<void(const msgpack::object&, bool)> copy = [&](const msgpack::object& m,
+                                                               bool target) {
+    const auto& map = m.via.map;
+    bool present = false;
+    for (std::uint32_t i = 0; i < map.size; ++i) {
+      present = present || (target && map.ptr[i].key.as<std::string>() == key);
+    }
+    pk.pack_map(map.size + (target && !present ? 1 : 0));
+    for (std::uint32_t i = 0; i < map.size; ++i) {
+      const std::string k = map.ptr[i].key.as<std::string>();
+      pk.pack(k);
+      if (target && k == key) {
+        write(pk);
+      } else if (!inside.empty() && !target && k == inside) {
+        copy(map.ptr[i].val, true);
+      } else {
+        pk.pack(map.ptr[i].val);
+      }
+    }
+    if (target && !present) {
+      pk.pack(key);
+      write(pk);
+    }
+  };
+  copy(h.get(), inside.empty());
+  return Bytes(sb.data(), sb.data() + sb.size());
+}
+
+void an_extrinsic_makes_version_2() {
+  wire::DetectionFrame f = radar_frame();
+  CHECK(wire::encode(f)[16] == 1);  // schema_version, right after its key
+  f.extrinsic = kRear;
+  const Bytes b = wire::encode(f);
+  CHECK(b[16] == 2);
+  const auto back = wire::decode_detection_frame(b);
+  CHECK_MSG(back.ok(), back.ok() ? "" : back.error().message());
+  CHECK(back.ok() && back.value() == f && back.value().schema_version == 2);
+  CHECK(back.ok() && wire::encode(back.value()) == b);
+
+  // An extrinsic under version 1 is an unknown key, as to a version-1 reader.
+  const Bytes v1 = with_entry(b, "schema_version", [](auto& pk) { pk.pack(1); });
+  const auto r1 = wire::decode_detection_frame(v1);
+  CHECK(!r1.ok() && r1.error().reason == wire::Reason::extra_field &&
+        r1.error().field == std::string("extrinsic"));
+  wire::Pose scaled = kRear;
+  scaled[0] = -2;
+  const Bytes bad = with_entry(b, "extrinsic", [&](auto& pk) {
+    pk.pack_array(16);
+    for (const double v : scaled) pk.pack_double(v);
+  });
+  const auto r2 = wire::decode_detection_frame(bad);
+  CHECK(!r2.ok() && r2.error().reason == wire::Reason::invalid_value &&
+        r2.error().field == std::string("extrinsic"));
+  f.extrinsic = scaled;
+  CHECK(wire::validate(f) && wire::validate(f)->field == std::string("extrinsic"));
+  f.extrinsic = kRear;
+  f.schema_version = 1;
+  bool threw = false;
+  try {
+    (void)wire::encode(f);
+  } catch (const wire::EncodeError&) {
+    threw = true;
+  }
+  CHECK(threw);
+}
+
+wire::VehicleTrackFrame fused() {
+  wire::VehicleTrackFrame f;
+  f.vehicle = "veh-1", f.seq = 100, f.stamp_ns = 2000, f.sensor = "lidar", f.sensor_seq = 7;
+  f.frame_id = "base_link", f.instance = "svc", f.received_ns = 3000, f.published_ns = 4000;
+  f.sensors = {"lidar", "radar"};
+  f.sensor_state = {wire::SensorCondition::ok, wire::SensorCondition::extrinsic};
+  wire::TrackColumns& t = f.tracks;
+  t.classes = {"Car"};
+  t.id = {7, std::int64_t{1} << 40};
+  t.class_index = {0, 0};
+  t.center = {{1, 2, 0.5f}, {3, 4, 0.5f}};
+  t.size = {{4, 2, 1.5f}, {4, 2, 1.5f}};
+  t.yaw = {0, 0.5f};
+  t.score = {0.9, 0.5};
+  t.velocity = {{0, 0, 0}, {1, 0, 0}};
+  t.state = {1, 0}, t.hits = {3, 1}, t.age = {4, 0}, t.time_since_update = {0, 0};
+  t.age_s = std::vector<double>{0.4, 0.0};
+  t.time_since_update_s = std::vector<double>{0.0, 0.0};
+  t.existence = std::vector<double>{1.0, 0.25};
+  t.sensor_stamp_ns = std::vector<std::vector<std::int64_t>>{{2000, 1950}, {2000, -1}};
+  return f;
+}
+
+void a_vehicle_frame_round_trips() {
+  const wire::VehicleTrackFrame f = fused();
+  const Bytes b = wire::encode(f);
+  const auto back = wire::decode_vehicle_track_frame(b);
+  CHECK_MSG(back.ok(), back.ok() ? "" : back.error().message());
+  CHECK(back.ok() && back.value() == f && wire::encode(back.value()) == b);
+  CHECK(f.global_id(1) == "veh-1/@vehicle/1099511627776");
+  CHECK(f.last_update_ns(0, "radar") == std::optional<std::uint64_t>(1950));
+  CHECK(!f.last_update_ns(1, "radar") && !f.last_update_ns(0, "camera"));
+  CHECK(!wire::validate_vehicle_tracks(f));
+  CHECK(!wire::decode_track_frame(b).ok());  // not a sensor's TrackFrame
+}
+
+wire::Rejection refusal(const Bytes& b) {
+  const auto r = wire::decode_vehicle_track_frame(b);
+  CHECK_MSG(!r.ok(), "accepted");
+  return r.ok() ? wire::Rejection{} : r.error();
+}
+
+bool is(const wire::Rejection& r, wire::Reason reason, const std::string& field) {
+  return r.reason == reason && r.field == field && r.seq == std::optional<std::uint64_t>(100);
+}
+
+template <class T>
+void pack_column(msgpack::packer<msgpack::sbuffer>& pk, const std::vector<T>& values) {
+  std::vector<std::uint8_t> bytes;
+  for (const T v : values) wire::detail::append_le(bytes, v);
+  pk.pack_bin(static_cast<std::uint32_t>(bytes.size()));
+  pk.pack_bin_body(reinterpret_cast<const char*>(bytes.data()),
+                   static_cast<std::uint32_t>(bytes.size()));
+}
+
+void a_vehicle_frame_breaking_its_rules_is_refused() {
+  const Bytes b = wire::encode(fused());
+  auto column = [&](const std::string& name, auto values) {
+    return with_entry(b, name, [&](auto& pk) { pack_column(pk, values); }, "tracks");
+  };
+  auto top = [&](const std::string& name, std::vector<std::string> values) {
+    return with_entry(b, name, [&](auto& pk) { pk.pack(values); });
+  };
+  CHECK(is(refusal(column("sensor_stamp_ns", std::vector<std::int64_t>{2000, 2000})),
+           wire::Reason::column_length, "tracks.sensor_stamp_ns"));
+  CHECK(is(refusal(column("existence", std::vector<double>{0.5, 1.5})), wire::Reason::invalid_value,
+           "tracks.existence"));
+  CHECK(is(refusal(column("sensor_stamp_ns", std::vector<std::int64_t>{2000, -2, 0, 0})),
+           wire::Reason::invalid_value, "tracks.sensor_stamp_ns"));
+  CHECK(is(refusal(top("sensors", {"lidar", "lidar"})), wire::Reason::invalid_value, "sensors"));
+  CHECK(
+      is(refusal(top("sensors", {"lidar", "@vehicle"})), wire::Reason::invalid_value, "sensors.1"));
+  CHECK(is(refusal(top("sensor_state", {"ok"})), wire::Reason::invalid_value, "sensor_state"));
+  CHECK(is(refusal(top("sensor_state", {"ok", "asleep"})), wire::Reason::invalid_value,
+           "sensor_state.1"));
+  CHECK(is(refusal(with_entry(b, "sensor", [](auto& pk) { pk.pack(std::string("camera")); })),
+           wire::Reason::invalid_value, "sensor"));
+  CHECK(is(refusal(with_entry(b, "schema_version", [](auto& pk) { pk.pack(2); })),
+           wire::Reason::wrong_version, "schema_version"));
+  CHECK(is(refusal(with_entry(b, "key_frame", [](auto& pk) { pk.pack(true); })),
+           wire::Reason::extra_field, "key_frame"));
+}
+
+bool encode_throws(const std::function<void(wire::VehicleTrackFrame&)>& mutate) {
+  wire::VehicleTrackFrame f = fused();
+  mutate(f);
+  try {
+    (void)wire::encode(f);
+  } catch (const wire::EncodeError&) {
+    return true;
+  }
+  return false;
+}
+
+void the_vehicle_encoder_refuses_what_the_decoder_would() {
+  CHECK(encode_throws([](auto& f) { f.tracks.sensor_stamp_ns = {{{1}, {1}}}; }));
+  CHECK(encode_throws([](auto& f) { f.tracks.existence.reset(); }));
+  CHECK(encode_throws([](auto& f) { f.sensor_state.pop_back(); }));
+  CHECK(encode_throws([](auto& f) { f.sensors[1] = "lidar"; }));
+  CHECK(encode_throws([](auto& f) { f.sensor = "camera"; }));
+  CHECK(encode_throws([](auto& f) { f.tracks.age_s.reset(); }));
+  // Values are the decoder's business, as for every message: validate_vehicle_tracks says so.
+  wire::VehicleTrackFrame f = fused();
+  (*f.tracks.existence)[0] = 1.5;
+  const auto r = wire::validate_vehicle_tracks(f);
+  CHECK(r && r->field == std::string("tracks.existence"));
+}
+
+void the_fusion_reasons() {
+  CHECK(wire::parse_reason("late") == wire::Reason::late);
+  CHECK(wire::parse_reason("sensor_flagged") == wire::Reason::sensor_flagged);
+  CHECK(wire::to_string(wire::Reason::internal_error) == "internal_error");
+  CHECK(wire::parse_sensor_condition("unseen") == wire::SensorCondition::unseen);
+  CHECK(!wire::detail::is_name(wire::kVehicleStream));
+}
+
+}  // namespace
+
+int main() {
+  an_extrinsic_makes_version_2();
+  a_vehicle_frame_round_trips();
+  a_vehicle_frame_breaking_its_rules_is_refused();
+  the_vehicle_encoder_refuses_what_the_decoder_would();
+  the_fusion_reasons();
+  return check::summary("fusion_cases");
+}
