@@ -99,3 +99,41 @@ def test_a_client_with_its_router_sees_a_member_go_within_a_tick() -> None:
         assert m.members == {"a"}
     finally:
         m.close()
+
+
+def test_vehicles_fuse_only_while_every_member_in_view_can() -> None:
+    m = Membership("a", Keys())
+    assert not m.fusion_gate()  # this member was given no fusion settings
+    m.fuses = True
+    assert m.fusion_gate()  # alone
+    m.token("b", True)  # a member of before fusion: no fusion token
+    assert not m.fusion_gate()
+    m.can_fuse("b")
+    assert m.fusion_gate()
+    m.token("c", True)
+    assert not m.fusion_gate()
+    m.token("c", False)
+    assert m.fusion_gate()
+    m.token("b", False)  # gone: able again only with a new token
+    m.token("b", True)
+    assert not m.fusion_gate()
+    m.can_fuse("b")
+    assert m.fusion_gate()
+
+
+def test_a_fused_sensors_stream_follows_the_gate_and_its_worker_never_moves() -> None:
+    from simpletrack.server.streams import Streams
+
+    gate = [True]
+    keys = Keys()
+    streams = Streams(keys, frozenset({"lidar", "camera"}), gate=lambda: gate[0])
+    assert streams.stream("veh01", "lidar") == "veh01/@vehicle"
+    assert streams.stream("veh01", "radar") == "veh01/radar"  # not a fused sensor
+    route = streams.route(keys.detections("veh01", "camera"))
+    gate[0] = False  # a member of before fusion joined: every sensor its own stream
+    assert streams.stream("veh01", "lidar") == "veh01/lidar"
+    assert streams.route(keys.detections("veh01", "camera")) == route  # same worker
+    assert route == streams.route(keys.detections("veh01", "lidar"))
+    only = Streams(keys, frozenset({"lidar"}), frozenset({"veh02"}))
+    assert only.stream("veh01", "lidar") == "veh01/lidar"
+    assert only.stream("veh02", "lidar") == "veh02/@vehicle"

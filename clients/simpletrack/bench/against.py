@@ -210,6 +210,11 @@ def core_figures(doc: dict[str, Any]) -> dict[Figure, float | None]:
     """The headline figures of one ``bench core`` document, missing keys tolerated (REF's
     document may be older)."""
     out: dict[Figure, float | None] = {}
+    fused = doc.get("fused") or {}
+    for key, name in (("latency", "fused vehicle"), ("one_sensor_latency", "one-sensor vehicle")):
+        lat = fused.get(key) or {}
+        for q in ("p50", "p99"):
+            out[Figure(f"{name} {q}", "time", "ms")] = _num(lat.get(f"{q}_ms"))
     for name, r in (doc.get("loads") or {}).items():
         lat = r.get("latency") or {}
         out[Figure(f"{name} frames/s", "rate", "frames/s")] = _num(r.get("frames_per_s"))

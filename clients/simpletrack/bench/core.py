@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from simpletrack.bench.fused import bench_fused
 from simpletrack.bench.stages import OTHER, StageTimer, resolve_targets
 from simpletrack.bench.stats import power_law, summary_ms
 from simpletrack.core import jit, solvers
@@ -302,12 +303,15 @@ def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict
     solvers.preload()
     jit.preload()
     results: dict[str, Any] = {}
+    fused: dict[str, Any] | None = None
     if opts.scenes > 0:
         progress(f"nuScenes: loading {opts.scenes} scenes from {opts.data / 'nuscenes'} ...")
         load = nuscenes_load(opts.data, opts.scenes)
         results["nuscenes"] = bench_load(load)
         progress("nuScenes again, configured for parity with the reference ...")
         results["nuscenes_parity"] = bench_load(parity_load(load))
+        progress("nuScenes as a fused vehicle: the lidar and a front camera ...")
+        fused = bench_fused(load.config, load.streams)
     if opts.kitti_sequences > 0:
         for classes in (("Car",), KITTI_CLASSES):
             load = kitti_load(opts.data, classes, opts.kitti_sequences)
@@ -317,4 +321,9 @@ def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict
     if opts.sizes:
         progress(f"scaling sweep: {', '.join(map(str, opts.sizes))} boxes ...")
         sw = sweep(opts.sizes, opts.sweep_frames, opts.sweep_budget_s)
-    return {"loads": results, "reference": against_reference(results), "sweep": sw}
+    return {
+        "loads": results,
+        "fused": fused,
+        "reference": against_reference(results),
+        "sweep": sw,
+    }

@@ -53,6 +53,25 @@ def core_tables(doc: dict[str, Any]) -> str:
             for name, r in loads.items()
         ]
         out += ["share of the step", table(["load", *cols], rows), ""]
+    fused = doc.get("fused")
+    if fused:
+        rows = [
+            [name, fmt(fused[key]["p50_ms"], 3), fmt(fused[key]["p99_ms"], 3),
+             fmt(fused[key]["max_ms"], 3)]
+            for name, key in (
+                ("every frame", "latency"),
+                ("lidar frames (360 deg)", "lidar_latency"),
+                ("camera frames (front)", "camera_latency"),
+                ("one-sensor vehicle, lidar frames", "one_sensor_latency"),
+            )
+        ]  # fmt: skip
+        out += [
+            f"VehicleTracker.apply per frame: nuScenes scenes as a fused vehicle ({fused['frames']}"
+            f" frames, {fused['frames_per_s']} frames/s; camera frames "
+            f"{fused['camera_boxes_per_frame']} boxes)",
+            table(["frames", "p50 ms", "p99 ms", "max ms"], rows),
+            "",
+        ]
     ref = doc["reference"]
     rows = []
     for name in ("nuscenes", "nuscenes_parity"):

@@ -22,6 +22,8 @@ from simpletrack.cli.common import (
 from simpletrack.cli.errors import UserError
 from simpletrack.wire import Rejection, SensorStatus, ServiceStatus, decode_message
 from simpletrack.wire.keys import Keys
+from simpletrack.wire.messages import VehicleStatus
+from simpletrack.wire.reasons import SensorCondition
 
 EPILOG = f"""\
 One block per instance that answered: its view of the group's members, ready or not, queue
@@ -30,6 +32,10 @@ With --sensors, one line per sensor owned: last seq and its stamp (UTC), frames 
 second over the last 10 s, frames, tracker resets (stamp gaps, time going back, publisher
 restarts) and frames with a plausibility warning (units, conventions) on this instance,
 tracks, seconds since its last frame.
+Every fused vehicle (docs/SERVICE.md, "Vehicle fusion") is listed with its sensors: each
+one's condition (ok; PROBATION while it is checked against the others; SILENT, CLOCK or
+EXTRINSIC, with why), frames taken, frames kept out, seconds since its last frame and its
+median stamp -> receipt latency.
 Exit 1 when no instance answered.
 
 {ZENOH_NOTE}
@@ -85,12 +91,33 @@ def sensor_line(x: SensorStatus) -> str:
     )
 
 
+def vehicle_lines(v: VehicleStatus) -> list[str]:
+    """A fused vehicle, then each of its sensors; a sensor not ok is named in capitals, with
+    why (a silent or flagged sensor is what an operator looks for)."""
+    lines = [
+        f"{v.vehicle}/@vehicle  seq={'-' if v.seq is None else v.seq}"
+        f"  stamp={_stamp(v.last_stamp_ns)}  frames={v.frames}  tracks={v.active_tracks}"
+        f"  late={v.late_frames}  reprocessed={v.reprocessed_frames}"
+    ]
+    for x in v.sensors:
+        state = x.state.value if x.state is SensorCondition.OK else x.state.value.upper()
+        idle = "-" if x.idle_s is None else f"{x.idle_s:.1f}s"
+        latency = "-" if x.latency_s is None else f"{x.latency_s * 1e3:.0f}ms"
+        why = f"  ({x.detail})" if x.detail else ""
+        lines.append(
+            f"  {x.sensor} {state}  seq={'-' if x.last_seq is None else x.last_seq}"
+            f"  frames={x.frames}  kept_out={x.flagged_frames}  idle={idle}"
+            f"  latency={latency}{why}"
+        )
+    return lines
+
+
 def render(statuses: list[ServiceStatus], with_sensors: bool) -> str:
     lines = []
     answered = {s.instance for s in statuses}
     seen = {m for s in statuses for m in s.members}
     for s in statuses:
-        tracks = sum(x.active_tracks for x in s.sensors)
+        tracks = sum(x.active_tracks for x in s.sensors) + sum(v.active_tracks for v in s.vehicles)
         lines.append(
             f"{s.instance}  {'ready' if s.ready else 'NOT READY'}  members={','.join(s.members)}"
             f"  owns={len(s.sensors)}  standby={s.standby_sensors}  tracks={tracks}"
@@ -100,6 +127,8 @@ def render(statuses: list[ServiceStatus], with_sensors: bool) -> str:
         if with_sensors:
             for x in sorted(s.sensors, key=lambda x: (x.vehicle, x.sensor)):
                 lines.append(f"    {sensor_line(x)}")
+        for v in sorted(s.vehicles, key=lambda v: v.vehicle):
+            lines.extend(f"    {line}" for line in vehicle_lines(v))
     for m in sorted(seen - answered):
         lines.append(f"{m}  silent (a member in some view that did not answer)")
     views = {tuple(s.members) for s in statuses}
@@ -130,4 +159,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["collect", "register", "render", "run", "sensor_line"]
+__all__ = ["collect", "register", "render", "run", "sensor_line", "vehicle_lines"]

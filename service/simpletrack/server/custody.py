@@ -133,6 +133,7 @@ class Custody:
         # Called with a stream's key before it is released (a fused vehicle's waiting
         # frames are applied first, so that its state is exact).
         self.before_release: Callable[[str], None] = lambda key: None
+        self.fused_sensors: tuple[str, ...] = ()  # the sensors a vehicle's stream fuses
 
     # ------------------------------------------------------------------ routing
     def role(self, sensor: str) -> Role:
@@ -173,6 +174,16 @@ class Custody:
         self.settled.add(key)
         self.released.pop(key, None)
         checkpoint, frames = self.standby.take(key)
+        if sensor == VEHICLE_STREAM:
+            # Kept as the sensors' own streams before fusion was on in the group (a rolling
+            # upgrade's last old member just left): those no member answered on the
+            # sensor's own key are the vehicle's now.
+            for name in self.fused_sensors:
+                with self.shared.lock:
+                    answered = self.shared.published.get(f"{vehicle}/{name}")
+                kept = self.standby.take(f"{vehicle}/{name}")[1]
+                upto = None if answered is None else answered.stamp_ns
+                frames += [f for f in kept if _after(f, upto)]
         snap, source = None, "new"
         if replies:
             snap, source = max(replies, key=lambda s: s.written_ns), "handoff"

@@ -154,9 +154,13 @@ class Membership:
     def _on_capability(self, sample: zenoh.Sample) -> None:
         parts = str(sample.key_expr).split("/")
         if len(parts) >= 3 and sample.kind == zenoh.SampleKind.PUT:
-            with self._lock:
-                self._capable.add(parts[-2])
-            self._gate_changed()
+            self.can_fuse(parts[-2])
+
+    def can_fuse(self, member: str) -> None:
+        """A member's fusion token appeared: it stays able until it leaves the view."""
+        with self._lock:
+            self._capable.add(member)
+        self._gate_changed()
 
     def _gate_changed(self) -> None:
         gate = self.fusion_gate()

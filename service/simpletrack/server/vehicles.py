@@ -130,7 +130,7 @@ class VehicleState:
                         last_seq=rec.last_seq,
                         last_stamp_ns=rec.last_stamp_ns,
                         frames=rec.frames,
-                        active_tracks=self.active_tracks,
+                        active_tracks=0,  # the vehicle's, counted once in its entry
                         idle_s=idle,
                     )
                 )

@@ -128,6 +128,7 @@ class Worker(threading.Thread):
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
         self.custody = Custody(ctx.shared, self.sensors, self.outbox, s.standby_frames)
         self.custody.before_release = self._before_release
+        self.custody.fused_sensors = () if ctx.fusion is None else ctx.fusion.names
         self.drain_deadline: float | None = None
         self.stopped = threading.Event()
         # Held while an item is handled: a member asking for a sensor takes it to release
