@@ -62,11 +62,11 @@ def write_class_overrides() -> Path:
 # by ``python -m simpletrack.sim.sweep --seed 1 --fusion`` (sweep.fusion_candidate); the
 # demo reports seed 0. Filled in from the sweep's winner.
 DEMO_FUSION: dict[str, object] = {
-    "max_age": 8,
-    "camera_spawn": True,
+    "max_age": 16,
+    "camera_spawn": False,
     "camera_gate": "l2_2.5",
     "camera_r": 16.0,
-    "spawn_clearance_m": 5.0,
+    "spawn_clearance_m": 0.0,
     "min_existence": 0.65,
     "occlusion": 0.0,
 }

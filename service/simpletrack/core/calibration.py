@@ -17,7 +17,8 @@ Pure: arrays in, an estimate out; the caller decides what to do with it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -30,6 +31,7 @@ BIN_M = 1.0
 _BINS = int(2 * SEARCH_M / BIN_M)
 _CENTRE = _BINS // 2  # the cell whose lower corner is (0, 0)
 DECAY = 0.7  # weight of the votes so far against the newest frame's
+TIME_DECAY = 0.95  # the same for the time fit: a noisy sensor's residuals need many frames
 MIN_VOTES = 6.0  # decayed votes a peak needs before it means anything
 PAIR_GATE_M = 4.0  # a pair (after the offset is taken out) fits the time estimate within this
 MIN_EXCITATION = 200.0  # sum of squared speeds (m/s)^2 before the time offset means anything
@@ -40,23 +42,26 @@ class MonitorState:
     votes: F64  # (_BINS, _BINS) decayed offset votes
     normal: F64  # (3, 3) decayed normal matrix of the (bx, by, delta) fit
     rhs: F64  # (3,)
+    sums: F64 = field(default_factory=lambda: np.zeros(2))  # decayed sum of y^2, and rows
 
     @classmethod
     def empty(cls) -> MonitorState:
-        return cls(np.zeros((_BINS, _BINS)), np.zeros((3, 3)), np.zeros(3))
+        return cls(np.zeros((_BINS, _BINS)), np.zeros((3, 3)), np.zeros(3), np.zeros(2))
 
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
     """What the votes say now. ``offset_m`` the peak's (x, y) (None: too few votes);
     ``agree`` whether this frame alone put its strongest vote near (0, 0) with at least
-    ``MIN_VOTES`` pairs close there; ``delta_s`` the clock offset (None: too little motion)."""
+    ``MIN_VOTES`` pairs close there; ``delta_s`` the clock offset (None: too little motion)
+    and ``delta_se`` its standard error (the residuals' scatter over the motion seen)."""
 
     offset_m: tuple[float, float] | None
     peak_votes: float
     zero_votes: float
     agree: bool
     delta_s: float | None
+    delta_se: float = math.inf
 
 
 def _region(votes: F64, i: int, j: int) -> float:
@@ -101,26 +106,34 @@ def observe(
     near_zero = abs(int(fi) - _CENTRE) <= 2 and abs(int(fj) - _CENTRE) <= 2
     agree = bool(near_zero and frame_zero >= MIN_VOTES / 2)
 
-    normal, rhs = _time_fit(d, same, trk_vel, offset)
-    normal = state.normal * DECAY + normal
-    rhs = state.rhs * DECAY + rhs
-    delta = None
-    if normal[2, 2] >= MIN_EXCITATION:
+    normal, rhs, sums = _time_fit(d, same, trk_vel, offset)
+    normal = state.normal * TIME_DECAY + normal
+    rhs = state.rhs * TIME_DECAY + rhs
+    sums = state.sums * TIME_DECAY + sums
+    delta, se = None, math.inf
+    if normal[2, 2] >= MIN_EXCITATION and sums[1] > 3:
         try:
-            delta = float(np.linalg.solve(normal + np.eye(3) * 1e-6, rhs)[2])
+            inv = np.linalg.inv(normal + np.eye(3) * 1e-6)
         except np.linalg.LinAlgError:
-            delta = None
-    return MonitorState(votes, normal, rhs), Estimate(offset, peak, zero, agree, delta)
+            inv = None
+        if inv is not None:
+            theta = inv @ rhs
+            delta = float(theta[2])
+            # Residual variance of the fit, from the running sums (y'y - theta' X'y).
+            var = max(float(sums[0] - theta @ rhs), 0.0) / (sums[1] - 3)
+            se = math.sqrt(var * max(float(inv[2, 2]), 0.0))
+    state = MonitorState(votes, normal, rhs, sums)
+    return state, Estimate(offset, peak, zero, agree, delta, se)
 
 
 def _time_fit(
     d: F64, same: npt.NDArray[np.bool_], trk_vel: F64, offset: tuple[float, float] | None
-) -> tuple[F64, F64]:
+) -> tuple[F64, F64, F64]:
     """The normal equations of ``residual = b + v * delta`` over the mutual nearest pairs
-    within ``PAIR_GATE_M`` once the offset is taken out."""
-    normal, rhs = np.zeros((3, 3)), np.zeros(3)
+    within ``PAIR_GATE_M`` once the offset is taken out, and (y'y, rows)."""
+    normal, rhs, sums = np.zeros((3, 3)), np.zeros(3), np.zeros(2)
     if d.size == 0:
-        return normal, rhs
+        return normal, rhs, sums
     shift = np.zeros(2) if offset is None else np.asarray(offset)
     r = d - shift
     dist = np.where(same, np.hypot(r[..., 0], r[..., 1]), np.inf)
@@ -130,7 +143,7 @@ def _time_fit(
     mutual = (best_d[best_t] == rows) & (dist[rows, best_t] <= PAIR_GATE_M)
     di, ti = rows[mutual], best_t[mutual]
     if di.size == 0:
-        return normal, rhs
+        return normal, rhs, sums
     res = d[di, ti]  # (K, 2) with the offset left in: b is fitted
     v = trk_vel[ti]
     # Rows: x residual = bx + vx delta; y residual = by + vy delta.
@@ -141,7 +154,7 @@ def _time_fit(
     a[:k, 2] = v[:, 0]
     a[k:, 2] = v[:, 1]
     y = np.concatenate([res[:, 0], res[:, 1]])
-    return a.T @ a, a.T @ y
+    return a.T @ a, a.T @ y, np.array([float(y @ y), float(y.size)])
 
 
 __all__ = ["Estimate", "MonitorState", "observe"]

@@ -323,7 +323,7 @@ class VehicleTracker:
                 return Condition.EXTRINSIC, (
                     f"detections sit ({off[0]:.1f}, {off[1]:.1f}) m from the vehicle's tracks"
                 )
-            if est.delta_s is not None and abs(est.delta_s) > tol:
+            if est.delta_s is not None and abs(est.delta_s) - 3 * est.delta_se > tol:
                 rec.source = "monitor"
                 side = "behind" if est.delta_s > 0 else "ahead of"
                 return Condition.CLOCK, (
@@ -931,6 +931,7 @@ def _record_obj(r: SensorRecord) -> dict[str, Any]:
         "last_stamp_ns": r.last_stamp_ns, "frames": r.frames, "kept_out": r.kept_out,
         "agreed": r.agreed, "too_old": r.too_old, "source": r.source,
         "votes": _arr(m.votes), "normal": _arr(m.normal), "rhs": _arr(m.rhs),
+        "sums": _arr(m.sums),
         "transform": None if r.transform is None else _arr(r.transform),
     }  # fmt: skip
 
