@@ -18,7 +18,7 @@ SOURCES = [ROOT / "service", ROOT / "schemas", ROOT / "clients"]
 CORE_ALLOWED = {
     "numpy", "scipy", "numba", "msgpack", "pydantic",
     "__future__", "dataclasses", "enum", "typing", "collections", "functools", "hashlib", "math",
-    "os", "threading", "types", "warnings", "importlib",
+    "os", "threading", "types", "warnings", "importlib", "heapq", "itertools",
 }  # fmt: skip
 # Only the kernel compiler may import numba, and read the environment (SIMPLETRACK_JIT).
 CORE_ONLY_IN = {"numba": "jit.py", "os": "jit.py", "importlib": "jit.py"}

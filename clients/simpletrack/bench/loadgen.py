@@ -39,7 +39,7 @@ from simpletrack.wire import BoxArrays
 from simpletrack.wire.codec import pack
 from simpletrack.wire.convert import boxes_to_wire
 from simpletrack.wire.models import BoxColumns
-from simpletrack.wire.reasons import SCHEMA_VERSION
+from simpletrack.wire.reasons import DETECTION_SCHEMA_VERSION, SCHEMA_VERSION
 
 # Every class the detector reports, as it reports them: the service drops the untracked ones.
 ALL_CLASSES = tuple(TYPE_NAMES[t] for t in sorted(TYPE_NAMES))
@@ -66,6 +66,15 @@ class LoadSpec:
     # Advanced publishers (cache, liveliness token), as DetectionPublisher declares: what a
     # group with subscribe = "owned" finds sensors by.
     advanced: bool = False
+    # Fused vehicles instead of sensors: ``sensors`` vehicles, each a lidar (the scene's
+    # frames) and a front camera (its view of them, half a period later), answered on the
+    # vehicle's key (docs/SERVICE.md, "Vehicle fusion").
+    fused: bool = False
+
+    @property
+    def streams(self) -> int:
+        """Input streams: a sensor each, or a vehicle's two."""
+        return self.sensors * (len(FUSED_SENSORS) if self.fused else 1)
 
     @property
     def ticks(self) -> int:
@@ -76,8 +85,45 @@ class LoadSpec:
         return math.ceil(self.warmup_s * self.rate_hz)
 
 
+FUSED_SENSORS = ("lidar", "camera")
+IDENTITY = np.eye(4).reshape(-1).tolist()
+
+
 def sensor_name(i: int) -> str:
     return f"s{i:04d}"
+
+
+def vehicle_name(prefix: str, i: int) -> str:
+    return f"{prefix}{i:04d}"
+
+
+def stream_key(spec: LoadSpec, row: int) -> str:
+    """Stream ``row``'s detections key: sensor ``row`` of the vehicle, or (fused) sensor
+    ``row % 2`` of vehicle ``row // 2``."""
+    if not spec.fused:
+        return f"{spec.prefix}/{spec.vehicle}/{sensor_name(row)}/detections"
+    sensor = FUSED_SENSORS[row % len(FUSED_SENSORS)]
+    return f"{spec.prefix}/{vehicle_name(spec.vehicle, row // 2)}/{sensor}/detections"
+
+
+def front_view(columns: dict[str, Any]) -> dict[str, Any]:
+    """What a front camera at the origin sees of a frame (90 degrees, 70 m)."""
+    center = np.frombuffer(columns["center"], np.float32).reshape(-1, 3)
+    keep = (np.hypot(center[:, 0], center[:, 1]) <= 70.0) & (
+        np.abs(np.arctan2(center[:, 1], center[:, 0])) <= np.pi / 4
+    )
+    out = dict(columns)
+    out["count"] = int(keep.sum())
+    for name, width in (("class_index", 1), ("center", 3), ("size", 3), ("yaw", 1)):
+        dtype = np.int32 if name == "class_index" else np.float32
+        arr = np.frombuffer(columns[name], dtype).reshape(-1, width)[keep]
+        out[name] = np.ascontiguousarray(arr).tobytes()
+    out["score"] = np.frombuffer(columns["score"], np.float64)[keep].tobytes()
+    if "velocity" in columns:
+        out["velocity"] = (
+            np.frombuffer(columns["velocity"], np.float32).reshape(-1, 2)[keep].tobytes()
+        )
+    return out
 
 
 # ----------------------------------------------------------------------------- frames
@@ -111,22 +157,28 @@ def box_columns(boxes: BoxArrays) -> dict[str, Any]:
 
 
 def detection_payload(
-    vehicle: str, sensor: str, seq: int, stamp_ns: int, columns: dict[str, Any]
+    vehicle: str,
+    sensor: str,
+    seq: int,
+    stamp_ns: int,
+    columns: dict[str, Any],
+    extrinsic: list[float] | None = None,
 ) -> bytes:
     """Byte for byte ``schemas.encode_detection_frame`` (a test checks), minus re-encoding the
     box columns on every send: at 5000 frames/s that cost would be the load generator's."""
-    return pack(
-        {
-            "schema_version": SCHEMA_VERSION,
-            "vehicle": vehicle,
-            "sensor": sensor,
-            "seq": seq,
-            "stamp_ns": stamp_ns,
-            "frame_id": FRAME_ID,
-            "key_frame": True,
-            "boxes": columns,
-        }
-    )
+    frame: dict[str, Any] = {
+        "schema_version": SCHEMA_VERSION if extrinsic is None else DETECTION_SCHEMA_VERSION,
+        "vehicle": vehicle,
+        "sensor": sensor,
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "frame_id": FRAME_ID,
+        "key_frame": True,
+        "boxes": columns,
+    }
+    if extrinsic is not None:
+        frame["extrinsic"] = extrinsic
+    return pack(frame)
 
 
 def peek(payload: bytes, field: str) -> Any:
@@ -147,15 +199,20 @@ def peek(payload: bytes, field: str) -> Any:
 
 
 def load_streams(spec: LoadSpec) -> list[list[dict[str, Any]]]:
-    """Box columns per frame for each distinct stream; sensor i replays stream i % len."""
+    """Box columns per frame for each distinct stream; sensor i replays stream i % len (a
+    fused vehicle: each frame's columns by sensor, the camera's its front view)."""
     if spec.source == "synthetic":
         n = min(spec.sensors, 4)
-        return [
+        out = [
             [box_columns(b) for b in synthetic_box_arrays(spec.synthetic_boxes, s)]
             for s in range(n)
         ]
-    files = list(scene_files(Path(spec.data)))[: spec.sensors]
-    return [[box_columns(b) for b in scene_box_arrays(p)] for p in files]
+    else:
+        files = list(scene_files(Path(spec.data)))[: spec.sensors]
+        out = [[box_columns(b) for b in scene_box_arrays(p)] for p in files]
+    if spec.fused:  # each frame: the lidar's columns and the camera's, in FUSED_SENSORS order
+        return [[{"lidar": c, "camera": front_view(c)} for c in stream] for stream in out]
+    return out
 
 
 # ----------------------------------------------------------------------------- the run
@@ -164,7 +221,7 @@ class Receiver:
 
     def __init__(self, spec: LoadSpec) -> None:
         self.spec = spec
-        shape = (spec.sensors, spec.ticks)
+        shape = (spec.streams, spec.ticks)
         self.recv_ns = np.zeros(shape, np.int64)
         self.refused = np.zeros(shape, np.bool_)
         self.reasons: Counter[str] = Counter()
@@ -177,13 +234,23 @@ class Receiver:
         self.lock = threading.Lock()
 
     def _index(self, sample: zenoh.Sample, payload: bytes) -> tuple[int, int] | None:
+        """(stream row, seq) of a tracks or errors sample."""
+        parts = str(sample.key_expr).split("/")
         try:
-            sensor = int(str(sample.key_expr).split("/")[-2][1:])
-            seq = int(peek(payload, "seq"))
+            if not self.spec.fused:
+                row, seq = int(parts[-2][1:]), int(peek(payload, "seq"))
+            else:
+                vehicle = int(parts[-3][-4:])
+                sensor = parts[-2]
+                if sensor == "@vehicle":  # a fused message: the frame it answers
+                    sensor, seq = str(peek(payload, "sensor")), int(peek(payload, "sensor_seq"))
+                else:
+                    seq = int(peek(payload, "seq"))
+                row = vehicle * len(FUSED_SENSORS) + FUSED_SENSORS.index(sensor)
         except (ValueError, TypeError, IndexError):
             return None
-        if 0 <= sensor < self.spec.sensors and 0 <= seq < self.spec.ticks:
-            return sensor, seq
+        if 0 <= row < self.spec.streams and 0 <= seq < self.spec.ticks:
+            return row, seq
         return None
 
     def on_tracks(self, sample: zenoh.Sample) -> None:
@@ -224,15 +291,21 @@ def _publish(
     recv: Receiver,
     conn: Connection,
 ) -> tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]:
-    """Puts on schedule: sensor i at tick k is due at t0 + (k + i / S) / rate."""
-    n, ticks = spec.sensors, spec.ticks
+    """Puts on schedule: stream i at tick k is due at t0 + (k + i / S) / rate (a fused
+    vehicle's camera half a period after its lidar, stamped so)."""
+    n, ticks = spec.streams, spec.ticks
     period_ns = int(1e9 / spec.rate_hz)
     sent_ns = np.zeros((n, ticks), np.int64)
     late_ns = np.zeros((n, ticks), np.int64)
     stamp0 = time.time_ns()
     t0 = time.monotonic_ns() + 50_000_000
-    offsets = [i * period_ns // n for i in range(n)]
-    names = [sensor_name(i) for i in range(n)]
+    if spec.fused:
+        half = period_ns // 2
+        offsets = [(i // 2) * half // spec.sensors + (i % 2) * half for i in range(n)]
+    else:
+        offsets = [i * period_ns // n for i in range(n)]
+    names = [stream_key(spec, i).split("/") for i in range(n)]
+    extrinsic = IDENTITY if spec.fused else None
     for k in range(ticks):
         if k == spec.warm_ticks:
             start = time.monotonic_ns()
@@ -244,10 +317,14 @@ def _publish(
             wait = due - time.monotonic_ns()
             if wait > 0:
                 time.sleep(wait * 1e-9)
-            frames = streams[i % len(streams)]
+            frames = streams[(i // 2 if spec.fused else i) % len(streams)]
+            columns = frames[k % len(frames)]
+            if spec.fused:
+                columns = columns[FUSED_SENSORS[i % 2]]
             payload = detection_payload(
-                spec.vehicle, names[i], k, stamp0 + k * period_ns, frames[k % len(frames)]
-            )
+                names[i][-3], names[i][-2], k, stamp0 + k * period_ns + offsets[i] % period_ns
+                if spec.fused else stamp0 + k * period_ns, columns, extrinsic,
+            )  # fmt: skip
             now = time.monotonic_ns()
             pubs[i].put(payload)
             sent_ns[i, k] = now
@@ -305,9 +382,13 @@ def run(conn: Connection, spec: LoadSpec) -> None:
         recv = Receiver(spec)
         base = f"{spec.prefix}/{spec.vehicle}"
         with open_session(mode="peer", connect=[spec.endpoint, *spec.connect]) as session:
-            session.declare_subscriber(f"{base}/*/tracks", recv.on_tracks)
+            if spec.fused:
+                base = f"{spec.prefix}/*"
+                session.declare_subscriber(f"{base}/@vehicle/tracks", recv.on_tracks)
+            else:
+                session.declare_subscriber(f"{base}/*/tracks", recv.on_tracks)
             session.declare_subscriber(f"{base}/*/errors", recv.on_errors)
-            keys = [f"{base}/{sensor_name(i)}/detections" for i in range(spec.sensors)]
+            keys = [stream_key(spec, i) for i in range(spec.streams)]
             block = zenoh.CongestionControl.BLOCK
             plain = [session.declare_publisher(k, congestion_control=block) for k in keys]
             pubs: list[Any] = plain
@@ -330,7 +411,10 @@ def run(conn: Connection, spec: LoadSpec) -> None:
                 if time.monotonic() > deadline:
                     raise RuntimeError("no subscriber matched the detection keys within 30 s")
                 time.sleep(0.02)
-            boxes = [c["count"] for s in streams for c in s]
+            per_frame = [c for s in streams for c in s]
+            if spec.fused:
+                per_frame = [f[name] for f in per_frame for name in FUSED_SENSORS]
+            boxes = [c["count"] for c in per_frame]
             conn.send(("ready", {"streams": len(streams), "boxes_mean": float(np.mean(boxes))}))
             if conn.recv() != "go":
                 return

@@ -51,6 +51,17 @@ GOAL_STREAMS_PER_CORE = 500.0
 STEP_OVERHEAD_S = 6.0  # start-up, connection and drain around each measured window
 
 
+# The fused vehicles' settings (--fused): the load generator's lidar and front camera.
+FUSION_CONFIG = """\
+[fusion.sensors.lidar]
+[fusion.sensors.camera]
+fov_deg = 90.0
+max_range_m = 70.0
+r = 4.0
+verify = false
+"""
+
+
 class BenchError(RuntimeError):
     """A step could not run (server did not start, load generator failed): one line."""
 
@@ -72,6 +83,7 @@ class ServiceBenchOptions:
     p99_limit_ms: float = P99_LIMIT_MS
     drain_s: float = 5.0
     subscribe: str = "wide"  # the members' subscribe setting
+    fused: bool = False  # vehicles of a lidar and a camera, fused (loadgen.LoadSpec.fused)
 
 
 # ----------------------------------------------------------------------------- processes
@@ -163,6 +175,10 @@ def launch_tracker(
         "SIMPLETRACK_SUBSCRIBE": opts.subscribe,
         "SIMPLETRACK_IGNORE_CLASSES": json.dumps(loadgen.UNTRACKED),
     }
+    if opts.fused:
+        config = tmp / f"fusion-{port}.toml"
+        config.write_text(FUSION_CONFIG)
+        cmd += ["--config", str(config)]
     with open(log, "wb") as out:
         proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=out)
     return Server("service", proc, endpoint, metrics_port, log, instance)
@@ -375,6 +391,7 @@ def load_spec(
         data=str(opts.data),
         synthetic_boxes=opts.synthetic_boxes,
         advanced=opts.subscribe == "owned",
+        fused=opts.fused,
     )
 
 
@@ -461,12 +478,18 @@ def measure_step(
             "rejected": _counters(m2, "simpletrack_frames_rejected_total"),
             "dropped": _counters(m2, "simpletrack_frames_dropped_total"),
             "window_stage_ms": _stage_means(m0, m1),
+            "fusion_frames": _counters(m2, "simpletrack_fusion_frames_total"),
         }
     if profile is not None:
         step["profile"] = profile
-    step["saturated"], step["why"] = saturation(step, opts.p99_limit_ms)
+    limit = opts.p99_limit_ms
+    if opts.fused:  # a lidar frame waits for the camera's, half a period later, by design
+        limit += 500.0 / opts.rate_hz
+        step["fused"] = True
+        step["limit_ms"] = limit
+    step["saturated"], step["why"] = saturation(step, limit)
     p99 = step["latency"]["p99_ms"]
-    step["passes"] = not step["saturated"] and p99 is not None and p99 < opts.p99_limit_ms
+    step["passes"] = not step["saturated"] and p99 is not None and p99 < limit
     return step
 
 

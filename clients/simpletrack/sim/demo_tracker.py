@@ -60,13 +60,14 @@ def write_class_overrides() -> Path:
 
 # The fused vehicle's own settings (the per-sensor trackers keep DEMO_CLASS_CHANGES), chosen
 # by ``python -m simpletrack.sim.sweep --seed 1 --fusion`` (sweep.fusion_candidate); the
-# demo reports seed 0. Filled in from the sweep's winner.
+# demo reports seed 0. Its winner on seed 1 (192 candidates, 200 ticks): MOTA 0.674,
+# 1.38 ids per object against 4.20 for the per-sensor tracks taken together.
 DEMO_FUSION: dict[str, object] = {
-    "max_age": 16,
+    "max_age": 12,
     "camera_spawn": False,
     "camera_gate": "l2_2.5",
     "camera_r": 16.0,
-    "spawn_clearance_m": 0.0,
+    "spawn_clearance_m": 5.0,
     "min_existence": 0.65,
     "occlusion": 0.0,
 }

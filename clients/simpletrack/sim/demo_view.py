@@ -261,5 +261,15 @@ def summary_json(result: DemoResult, options: DemoOptions) -> dict[str, Any]:
                 "ids": _stream_counts(stats, st).ids,
             }
             for (v, s), st in stats.streams.items()
+            if not st.fused
+        },
+        "fused_streams": {
+            f"{v}/@vehicle": {
+                "messages": st.tracked,
+                "mota": num(_stream_counts(stats, st).mota),
+                "ids": _stream_counts(stats, st).ids,
+            }
+            for (v, _), st in stats.streams.items()
+            if st.fused
         },
     }

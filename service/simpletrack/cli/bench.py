@@ -245,6 +245,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     svc.add_argument("--no-echo", action="store_true", help="skip the Zenoh echo floor")
     svc.add_argument(
+        "--fused",
+        action="store_true",
+        help="fused vehicles instead of sensors: each step's count is vehicles, each a lidar "
+        "(the scene's frames) and a front camera (its view of them, half a period later), "
+        "answered on the vehicle's key; latency: each frame's put to the vehicle message "
+        "answering it (docs/SERVICE.md, Vehicle fusion)",
+    )
+    svc.add_argument(
         "--profile",
         type=Path,
         metavar="DIR",
@@ -555,6 +563,7 @@ def run_service(args: argparse.Namespace) -> int:
                 *("--p99-limit", repr(args.p99_limit)),
                 *("--budget", repr(args.budget)),
                 *(("--no-echo",) if args.no_echo else ()),
+                *(("--fused",) if args.fused else ()),
             ],
         )
     _out_paths(args)
@@ -569,9 +578,10 @@ def run_service(args: argparse.Namespace) -> int:
         data=scenes,
         synthetic_boxes=args.synthetic_boxes,
         budget_s=args.budget,
-        echo=not args.no_echo,
+        echo=not args.no_echo and not args.fused,  # the echo server answers no vehicle key
         profile_dir=args.profile,
         p99_limit_ms=args.p99_limit,
+        fused=args.fused,
     )
     before = machine()
     try:

@@ -100,24 +100,31 @@ class FusedFrames:
         """Apply what the vehicle's buffer lets go now (everything: ``flush``)."""
         now = time.monotonic()
         ready = state.buffer.flush() if flush else state.buffer.pop_ready(now)
+        wait = self.w.ctx.metrics.fusion_wait
         for waiting in ready:
-            self.w.ctx.metrics.fusion_wait.observe(now - waiting.item.received_at)
+            wait.observe(now - waiting.item.received_at)
             self._apply(state, waiting)
-        for sensor in state.tracker.sensors:
-            state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
-        state.buffer.ignored = frozenset(
-            s for s, r in state.tracker.records.items() if r.condition.kept_out
-        )
+        if ready:  # the sensors' standing, for the next frames' wait and the messages
+            for sensor in state.tracker.sensors:
+                state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
+            state.buffer.ignored = frozenset(
+                s for s, r in state.tracker.records.items() if r.condition.kept_out
+            )
         if not len(state.buffer):
             self._waiting.discard(f"{state.vehicle}/{VEHICLE_STREAM}")
 
     def release_due(self) -> None:
+        """The vehicles whose first waiting frame's window is over (a frame of a vehicle
+        goes at once when its sensors pass it: ``track`` releases then)."""
+        now = time.monotonic()
         for key in list(self._waiting):
             state = self.w.sensors.get(key)
-            if isinstance(state, VehicleState):
-                self.release(state)
-            else:
+            if not isinstance(state, VehicleState):
                 self._waiting.discard(key)
+                continue
+            due = state.buffer.due()
+            if due is None or due <= now:
+                self.release(state)
 
     def flush_all(self) -> None:
         for key in list(self._waiting):
