@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from simpletrack.core import calibration_kernels as kernels
+
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
@@ -79,10 +81,9 @@ def observe(
 ) -> tuple[MonitorState, Estimate]:
     """Vote with one frame: detections (N, 2) in the tracking frame, the trusted tracks'
     predicted centres (M, 2) and velocities (M, 2) at the frame's stamp."""
-    d = det_xy[:, None, :] - trk_xy[None, :, :]  # (N, M, 2): detection minus track
-    same = det_cls[:, None] == trk_cls[None, :]
-    near = same & (np.abs(d) < SEARCH_M).all(axis=2)
-    off = d[near]
+    det_cls = np.asarray(det_cls, dtype=np.int32)
+    trk_cls = np.asarray(trk_cls, dtype=np.int32)
+    off = kernels.voting_pairs(det_xy, det_cls, trk_xy, trk_cls, SEARCH_M)
     cells = np.floor(off / BIN_M).astype(np.int64) + _CENTRE
     frame_votes = np.zeros((_BINS, _BINS))
     np.add.at(frame_votes, (cells[:, 0], cells[:, 1]), 1.0)
@@ -106,7 +107,9 @@ def observe(
     near_zero = abs(int(fi) - _CENTRE) <= 2 and abs(int(fj) - _CENTRE) <= 2
     agree = bool(near_zero and frame_zero >= MIN_VOTES / 2)
 
-    normal, rhs, sums = _time_fit(d, same, trk_vel, offset)
+    sx, sy = (0.0, 0.0) if offset is None else offset
+    fit = kernels.time_fit(det_xy, det_cls, trk_xy, trk_vel, trk_cls, sx, sy, PAIR_GATE_M)
+    normal, rhs, sums = fit[:9].reshape(3, 3), fit[9:12], fit[12:]
     normal = state.normal * TIME_DECAY + normal
     rhs = state.rhs * TIME_DECAY + rhs
     sums = state.sums * TIME_DECAY + sums
@@ -124,37 +127,6 @@ def observe(
             se = math.sqrt(var * max(float(inv[2, 2]), 0.0))
     state = MonitorState(votes, normal, rhs, sums)
     return state, Estimate(offset, peak, zero, agree, delta, se)
-
-
-def _time_fit(
-    d: F64, same: npt.NDArray[np.bool_], trk_vel: F64, offset: tuple[float, float] | None
-) -> tuple[F64, F64, F64]:
-    """The normal equations of ``residual = b + v * delta`` over the mutual nearest pairs
-    within ``PAIR_GATE_M`` once the offset is taken out, and (y'y, rows)."""
-    normal, rhs, sums = np.zeros((3, 3)), np.zeros(3), np.zeros(2)
-    if d.size == 0:
-        return normal, rhs, sums
-    shift = np.zeros(2) if offset is None else np.asarray(offset)
-    r = d - shift
-    dist = np.where(same, np.hypot(r[..., 0], r[..., 1]), np.inf)
-    best_t = np.argmin(dist, axis=1)  # each detection's nearest track
-    best_d = np.argmin(dist, axis=0)  # each track's nearest detection
-    rows = np.arange(dist.shape[0])
-    mutual = (best_d[best_t] == rows) & (dist[rows, best_t] <= PAIR_GATE_M)
-    di, ti = rows[mutual], best_t[mutual]
-    if di.size == 0:
-        return normal, rhs, sums
-    res = d[di, ti]  # (K, 2) with the offset left in: b is fitted
-    v = trk_vel[ti]
-    # Rows: x residual = bx + vx delta; y residual = by + vy delta.
-    k = di.size
-    a = np.zeros((2 * k, 3))
-    a[:k, 0] = 1.0
-    a[k:, 1] = 1.0
-    a[:k, 2] = v[:, 0]
-    a[k:, 2] = v[:, 1]
-    y = np.concatenate([res[:, 0], res[:, 1]])
-    return a.T @ a, a.T @ y, np.array([float(y @ y), float(y.size)])
 
 
 __all__ = ["Estimate", "MonitorState", "observe"]
