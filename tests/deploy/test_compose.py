@@ -309,7 +309,7 @@ def test_the_dashboard_shows_the_group() -> None:
     assert any('reason="missed"' in e for e in per_instance)
     assert "sum by (direction)" in text  # hand-offs in and out
     rows = [p for p in dashboard()["panels"] if p["type"] == "row"]
-    assert [r["title"] for r in rows] == ["Scale-out group", "Process"]
+    assert [r["title"] for r in rows] == ["Scale-out group", "Process", "Vehicle fusion"]
     panels = dashboard()["panels"]
     for i, a in enumerate(panels):
         for b in panels[i + 1 :]:
@@ -361,6 +361,14 @@ def test_the_dashboard_shows_the_process() -> None:
     for metric in ("simpletrack_tracker_resets_total", "simpletrack_frames_dropped_total"):
         assert metric in text, metric
     assert 'reason="missed"' in text
+
+
+def test_the_dashboard_shows_the_fused_vehicles() -> None:
+    text = "\n".join(expr for _, expr in dashboard_queries())
+    for metric in ("simpletrack_fusion_sensors", "simpletrack_fusion_frames_total"):
+        assert metric in text, metric
+    assert "sum by (condition)" in text and "sum by (outcome)" in text
+    assert "rate(simpletrack_fusion_wait_seconds_bucket" in text
 
 
 def _overlap(a: dict[str, int], b: dict[str, int]) -> bool:

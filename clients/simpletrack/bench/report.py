@@ -196,19 +196,22 @@ def service_tables(doc: dict[str, Any]) -> str:
         if s["why"]:
             out.append(f"{s['kind']} at {s['sensors']} sensors: " + "; ".join(s["why"]))
     cap = doc["capacity"]
+    unit = "vehicles" if cap.get("vehicles_per_core") is not None else "sensors"
     out += [
         f"stopped: {doc['stopped']} after {doc['elapsed_s']} s",
         f"1 sensor: p99 {fmt(cap['one_sensor_p99_ms'])} ms "
         f"(goal <= {cap['goal_one_sensor_p99_ms']:g} ms)",
-        f"largest passing step: {fmt(cap['max_sensors_passing'])} sensors at "
+        f"largest passing step: {fmt(cap['max_sensors_passing'])} {unit} at "
         f"{doc['steps'][0]['rate_hz'] if doc['steps'] else '-'} Hz "
         f"(p99 < {cap['p99_limit_ms']:g} ms, nothing refused or lost); first failing: "
         f"{fmt(cap['first_failing_sensors'])}; first saturated: "
         f"{fmt(cap['first_saturated_sensors'])}",
         f"streams per core: {fmt(cap['streams_per_core'], 1)} (1 / (server CPU per frame x rate) "
-        f"at {fmt(cap['streams_per_core_from_sensors'])} sensors, the busiest step that kept "
+        f"at {fmt(cap['streams_per_core_from_sensors'])} {unit}, the busiest step that kept "
         f"up); goal >= {cap['goal_streams_per_core']:g}",
     ]
+    if unit == "vehicles":
+        out.append(f"vehicles per core: {fmt(cap['vehicles_per_core'], 1)} (two streams each)")
     for s in doc["steps"]:
         prof = s.get("profile")
         if prof and "self" in prof:

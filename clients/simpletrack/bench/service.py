@@ -536,6 +536,8 @@ def capacity(steps: list[dict[str, Any]]) -> dict[str, Any]:
         per_frame_s = busiest["server_cpu_ms_per_frame"] * 1e-3
         out["streams_per_core"] = round(1.0 / (per_frame_s * busiest["rate_hz"]), 1)
         out["streams_per_core_from_sensors"] = busiest["sensors"]
+        if busiest.get("fused"):  # a vehicle is two streams (its lidar and its camera)
+            out["vehicles_per_core"] = round(out["streams_per_core"] / 2, 1)
     return out
 
 
@@ -556,19 +558,25 @@ def sweep(
             if spent + opts.warmup_s + opts.seconds + STEP_OVERHEAD_S > opts.budget_s:
                 stopped = f"time budget of {opts.budget_s:g} s"
                 break
-            progress(f"{kind:7s} {n:4d} sensors at {opts.rate_hz:g} Hz, {opts.seconds:g} s ...")
+            unit = "vehicles" if opts.fused else "sensors"
+            progress(f"{kind:7s} {n:4d} {unit} at {opts.rate_hz:g} Hz, {opts.seconds:g} s ...")
             result = step(kind, n)
             progress("        " + step_line(result))
             steps.append(result)
         if stopped.startswith("time"):
             break
         if any(s["saturated"] for s in steps if s["kind"] == "tracker" and s["sensors"] == n):
-            stopped = f"saturated at {n} sensors"
+            stopped = f"saturated at {n} {'vehicles' if opts.fused else 'sensors'}"
             break
     return {
         "steps": steps,
         "stopped": stopped,
-        "capacity": capacity(steps) | {"p99_limit_ms": opts.p99_limit_ms},
+        "capacity": capacity(steps)
+        | {
+            "p99_limit_ms": next(
+                (s["limit_ms"] for s in steps if "limit_ms" in s), opts.p99_limit_ms
+            )
+        },
         "elapsed_s": round(time.monotonic() - started, 1),
     }
 

@@ -24,6 +24,7 @@ from prometheus_client import (
     generate_latest,
 )
 
+from simpletrack.core.vehicle import Condition
 from simpletrack.server.plausibility import Cause
 from simpletrack.wire.reasons import DROP_REASONS, SCHEMA_VERSION, ErrorReason
 
@@ -221,6 +222,8 @@ class Metrics:
             ("condition",),
             registry=r,
         )
+        for condition in Condition:  # every series from the start (the app sets each)
+            self.fusion_sensors.labels(condition=condition.value)
         # By cause (an enum), never by sensor: the sensor is in the once-per-sensor log line
         # (docs/SERVICE.md, "Plausibility warnings").
         self.implausible = Counter(
