@@ -270,6 +270,32 @@ def test_a_camera_with_its_clock_or_mounting_off_is_flagged_and_changes_no_track
     ), json.dumps(svc.logs()[-5:])
 
 
+def test_a_fused_frame_without_pose_or_extrinsic_is_refused_and_an_unfused_one_tracked(
+    tmp_path: Path,
+) -> None:
+    config = write_config(tmp_path)
+    first = frames(0.5, _past())[0]  # the lidar's
+    svc = start_service(tmp_path, "--config", str(config))
+    unfused: list[bytes] = []
+    try:
+        with client(svc.endpoint) as c:
+            planner = Planner(c.session)
+            c.session.declare_subscriber(
+                f"fleet/{VEHICLE}/radar/tracks", lambda s: unfused.append(s.payload.to_bytes())
+            )
+            c.put(VEHICLE, "lidar", first.payload(extrinsic=None))
+            # A sensor the vehicle does not fuse needs neither (the KITTI and nuScenes data).
+            c.put(VEHICLE, "radar", first.payload(sensor="radar", extrinsic=None))
+            wait_for(lambda: planner.errors and unfused, 10, "the refusal and the radar's tracks")
+            time.sleep(0.3)
+    finally:
+        svc.stop()
+    [err] = planner.errors
+    assert (err.reason, err.field, err.seq) == (ErrorReason.MISSING_FIELD, "pose", first.seq)
+    assert "sensor->world pose" in err.detail and "sensor->vehicle" in err.detail
+    assert planner.n() == 0
+
+
 def _moved(f: WireFrame, stamp: int = 0, extrinsic: np.ndarray | None = None) -> WireFrame:
     from dataclasses import replace
 
