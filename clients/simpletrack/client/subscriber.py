@@ -63,22 +63,24 @@ RECENT_FRAMES = 16  # per key: a duplicate comes within a takeover, a few frames
 MAX_KEYS = 100_000
 
 
-@dataclass(frozen=True, slots=True)
-class TrackMessage:
-    """One decoded ``TrackFrame``: header, columns, and when this client received it."""
+class _TrackList:
+    """What a sensor's and a vehicle's track messages share: the header's vehicle and stamp,
+    the columns as names, boxes and ids, and fleet-unique ids ``<vehicle>/<sensor>/<id>``
+    (the stream's ``sensor``: a sensor's name or ``@vehicle``)."""
 
+    __slots__ = ()
     key: str
-    frame: TrackFrame
+    frame: TrackFrame | VehicleTrackFrame
     tracks: TrackArrays
-    received_ns: int  # this client's wall clock
+    received_ns: int
+
+    @property
+    def sensor(self) -> str:
+        raise NotImplementedError
 
     @property
     def vehicle(self) -> str:
         return self.frame.vehicle
-
-    @property
-    def sensor(self) -> str:
-        return self.frame.sensor
 
     @property
     def seq(self) -> int:
@@ -105,21 +107,6 @@ class TrackMessage:
 
         return track_boxes_from_wire(self.tracks, classes)
 
-    def global_id(self, i: int) -> str:
-        """Track i's fleet-unique id ``<vehicle>/<sensor>/<id>`` (schemas/README.md, "Track
-        identity"): the same for as long as the track lives, never given to another track."""
-        return global_id(self.frame.vehicle, self.frame.sensor, int(self.tracks.id[i]))
-
-    @property
-    def global_ids(self) -> list[str]:
-        """Every track's ``global_id``, in column order."""
-        return global_ids(self.frame.vehicle, self.frame.sensor, self.tracks.id)
-
-    @property
-    def schema_version(self) -> int:
-        """1 or 2; only 2 carries ``tracks.covariance``, ``age_s`` and ``time_since_update_s``."""
-        return self.frame.schema_version
-
     def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
         """Track ids, in the order of ``boxes(classes)``."""
         ids: np.ndarray[Any, np.dtype[np.int64]] = self.tracks.id.astype(np.int64)
@@ -128,20 +115,47 @@ class TrackMessage:
         keep = np.array([n in classes for n in self.class_names()], dtype=bool)
         return np.asarray(ids[keep], dtype=np.int64)
 
+    def global_id(self, i: int) -> str:
+        """Track i's fleet-unique id ``<vehicle>/<sensor>/<id>`` (``<vehicle>/@vehicle/<id>``
+        for a vehicle's fused tracks; schemas/README.md, "Track identity"): the same for as
+        long as the track lives, never given to another track."""
+        return global_id(self.frame.vehicle, self.sensor, int(self.tracks.id[i]))
+
+    @property
+    def global_ids(self) -> list[str]:
+        """Every track's ``global_id``, in column order."""
+        return global_ids(self.frame.vehicle, self.sensor, self.tracks.id)
+
 
 @dataclass(frozen=True, slots=True)
-class VehicleTrackMessage:
+class TrackMessage(_TrackList):
+    """One decoded ``TrackFrame``: header, columns, and when this client received it."""
+
+    key: str
+    frame: TrackFrame
+    tracks: TrackArrays
+    received_ns: int  # this client's wall clock
+
+    @property
+    def sensor(self) -> str:
+        return self.frame.sensor
+
+    @property
+    def schema_version(self) -> int:
+        """1 or 2; only 2 carries ``tracks.covariance``, ``age_s`` and ``time_since_update_s``."""
+        return self.frame.schema_version
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleTrackMessage(_TrackList):
     """One decoded ``VehicleTrackFrame``: a vehicle's fused track list at ``stamp_ns``
-    (docs/VEHICLES.md, "One object list per vehicle")."""
+    (docs/VEHICLES.md, "One object list per vehicle"). ``seq`` is the vehicle stream's
+    message counter."""
 
     key: str
     frame: VehicleTrackFrame
     tracks: TrackArrays  # with ``existence`` and ``sensor_stamp_ns`` (N, len(sensors))
     received_ns: int  # this client's wall clock
-
-    @property
-    def vehicle(self) -> str:
-        return self.frame.vehicle
 
     @property
     def sensor(self) -> str:
@@ -152,20 +166,6 @@ class VehicleTrackMessage:
     def source(self) -> tuple[str, int]:
         """(sensor, seq) of the input frame this message answers."""
         return self.frame.sensor, self.frame.sensor_seq
-
-    @property
-    def seq(self) -> int:
-        """The vehicle stream's message counter."""
-        return self.frame.seq
-
-    @property
-    def stamp_ns(self) -> int:
-        return self.frame.stamp_ns
-
-    @property
-    def latency_s(self) -> float:
-        """Sensor stamp to arrival here; meaningful when the sensors stamp with wall-clock time."""
-        return (self.received_ns - self.frame.stamp_ns) * 1e-9
 
     @property
     def sensors(self) -> list[str]:
@@ -187,31 +187,6 @@ class VehicleTrackMessage:
         assert stamps is not None
         return {s: int(t) for s, t in zip(self.frame.sensors, stamps[i].tolist(), strict=True)
                 if t >= 0}  # fmt: skip
-
-    def class_names(self) -> list[str]:
-        return [self.tracks.classes[i] for i in self.tracks.class_index.tolist()]
-
-    def boxes(self, classes: Sequence[str] | None = None) -> Boxes:
-        """As ``TrackMessage.boxes`` (needs the service extra)."""
-        from simpletrack.wire.convert import track_boxes_from_wire
-
-        return track_boxes_from_wire(self.tracks, classes)
-
-    def ids(self, classes: Sequence[str] | None = None) -> np.ndarray[Any, np.dtype[np.int64]]:
-        ids: np.ndarray[Any, np.dtype[np.int64]] = self.tracks.id.astype(np.int64)
-        if classes is None:
-            return ids
-        keep = np.array([n in classes for n in self.class_names()], dtype=bool)
-        return np.asarray(ids[keep], dtype=np.int64)
-
-    def global_id(self, i: int) -> str:
-        """Track i's fleet-unique id ``<vehicle>/@vehicle/<id>``: the vehicle's object for as
-        long as the track lives, never given to another (schemas/README.md)."""
-        return global_id(self.frame.vehicle, VEHICLE_STREAM, int(self.tracks.id[i]))
-
-    @property
-    def global_ids(self) -> list[str]:
-        return global_ids(self.frame.vehicle, VEHICLE_STREAM, self.tracks.id)
 
 
 def tracks_key(prefix: str = "fleet", vehicle: str = "*", sensor: str = "*") -> str:
