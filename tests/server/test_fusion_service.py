@@ -270,7 +270,7 @@ def test_a_camera_with_its_clock_or_mounting_off_is_flagged_and_changes_no_track
     ), json.dumps(svc.logs()[-5:])
 
 
-def test_a_fused_frame_without_pose_or_extrinsic_is_refused_and_an_unfused_one_tracked(
+def test_a_fused_frame_without_pose_or_on_another_key_is_refused_and_an_unfused_one_tracked(
     tmp_path: Path,
 ) -> None:
     config = write_config(tmp_path)
@@ -284,15 +284,27 @@ def test_a_fused_frame_without_pose_or_extrinsic_is_refused_and_an_unfused_one_t
                 f"fleet/{VEHICLE}/radar/tracks", lambda s: unfused.append(s.payload.to_bytes())
             )
             c.put(VEHICLE, "lidar", first.payload(extrinsic=None))
+            c.put(VEHICLE, "camera", first.payload())  # the lidar's frame on the camera's key
             # A sensor the vehicle does not fuse needs neither (the KITTI and nuScenes data).
             c.put(VEHICLE, "radar", first.payload(sensor="radar", extrinsic=None))
-            wait_for(lambda: planner.errors and unfused, 10, "the refusal and the radar's tracks")
+            wait_for(
+                lambda: len(planner.errors) >= 2 and unfused, 10, "the refusals, the radar's tracks"
+            )
             time.sleep(0.3)
     finally:
         svc.stop()
-    [err] = planner.errors
-    assert (err.reason, err.field, err.seq) == (ErrorReason.MISSING_FIELD, "pose", first.seq)
-    assert "sensor->world pose" in err.detail and "sensor->vehicle" in err.detail
+    no_pose, mismatch = sorted(planner.errors, key=lambda e: e.sensor != "lidar")
+    assert (no_pose.reason, no_pose.field, no_pose.seq) == (
+        ErrorReason.MISSING_FIELD,
+        "pose",
+        first.seq,
+    )
+    assert "sensor->world pose" in no_pose.detail and "sensor->vehicle" in no_pose.detail
+    assert (mismatch.sensor, mismatch.reason, mismatch.field) == (
+        "camera",
+        ErrorReason.KEY_MISMATCH,
+        "sensor",
+    )
     assert planner.n() == 0
 
 

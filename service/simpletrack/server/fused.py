@@ -17,7 +17,7 @@ import numpy as np
 from simpletrack.core.vehicle import Condition, Outcome, SensorInput
 from simpletrack.server.intake import Inbound
 from simpletrack.server.logs import get_logger
-from simpletrack.server.sensors import Arrival, Order, check_order, lead_ns
+from simpletrack.server.sensors import Arrival, Order, check_order, key_mismatch, lead_ns
 from simpletrack.server.vehicles import VehicleState, Waiting
 from simpletrack.wire.codec import Rejection, decode_detection_frame
 from simpletrack.wire.convert import boxes_from_wire, vehicle_tracks_to_wire
@@ -53,11 +53,9 @@ class FusedFrames:
             return
         frame = decoded.frame
         seq, stamp_ns = frame.seq, frame.stamp_ns
-        if frame.vehicle != vehicle or frame.sensor != sensor:
-            field_name = "vehicle" if frame.vehicle != vehicle else "sensor"
-            detail = f"payload says {frame.vehicle}/{frame.sensor}, key says {vehicle}/{sensor}"
-            w._refuse(item, vehicle, sensor, held, Rejection(
-                ErrorReason.KEY_MISMATCH, field_name, detail, seq, stamp_ns))  # fmt: skip
+        mismatch = key_mismatch(frame, vehicle, sensor)
+        if mismatch is not None:
+            w._refuse(item, vehicle, sensor, held, mismatch)
             return
         kind = WORLD if decoded.pose is not None else VEHICLE
         transform = decoded.pose if decoded.pose is not None else decoded.extrinsic

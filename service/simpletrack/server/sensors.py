@@ -13,6 +13,8 @@ from enum import Enum
 
 from simpletrack.core.state import TrackTable
 from simpletrack.core.tracker import Tracker
+from simpletrack.wire.decoding import Rejection
+from simpletrack.wire.messages import DetectionFrame
 from simpletrack.wire.models import SensorSnapshot
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
@@ -236,6 +238,15 @@ def lead_ns(ref: Arrival, frame: Arrival) -> int | None:
     if ref.received_ns is None or frame.received_ns is None:
         return None
     return (frame.stamp_ns - ref.stamp_ns) - (frame.received_ns - ref.received_ns)
+
+
+def key_mismatch(frame: DetectionFrame, vehicle: str, sensor: str) -> Rejection | None:
+    """The refusal of a frame whose payload names another vehicle or sensor than its key."""
+    if frame.vehicle == vehicle and frame.sensor == sensor:
+        return None
+    field_name = "vehicle" if frame.vehicle != vehicle else "sensor"
+    detail = f"payload says {frame.vehicle}/{frame.sensor}, key says {vehicle}/{sensor}"
+    return Rejection(ErrorReason.KEY_MISMATCH, field_name, detail, frame.seq, frame.stamp_ns)
 
 
 def check_order(

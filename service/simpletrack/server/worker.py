@@ -36,6 +36,7 @@ from simpletrack.server.sensors import (
     SensorState,
     Verdict,
     check_order,
+    key_mismatch,
     lead_ns,
 )
 from simpletrack.server.settings import ServiceSettings
@@ -413,11 +414,9 @@ class Worker(threading.Thread):
             return
         frame = decoded.frame
         seq, stamp_ns = frame.seq, frame.stamp_ns
-        if frame.vehicle != vehicle or frame.sensor != sensor:
-            field_name = "vehicle" if frame.vehicle != vehicle else "sensor"
-            detail = f"payload says {frame.vehicle}/{frame.sensor}, key says {vehicle}/{sensor}"
-            r = Rejection(ErrorReason.KEY_MISMATCH, field_name, detail, seq, stamp_ns)
-            self._refuse(item, vehicle, sensor, state, r)
+        mismatch = key_mismatch(frame, vehicle, sensor)
+        if mismatch is not None:
+            self._refuse(item, vehicle, sensor, state, mismatch)
             return
         # Before the ordering rules: a stamp in seconds explains the refusals that follow.
         flagged = not self._quiet and self._plausible(vehicle, sensor, seq, decoded, item)
