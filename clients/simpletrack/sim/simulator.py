@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from simpletrack.core.boxes import Boxes, transform_boxes, wrap_angle
 from simpletrack.core.config import TrackerConfig
+from simpletrack.core.occlusion import occlusion as core_occlusion
 from simpletrack.sim import clock
 
 F64 = npt.NDArray[np.float64]
@@ -470,43 +471,10 @@ class _Ego:
         return pose_matrix(x, y, 0.0, heading)
 
 
-def _angular_halfwidth(local: Boxes) -> tuple[F64, F64, F64]:
-    """Range, bearing and angular half-width of each box's BEV outline seen from the origin."""
-    x, y, yaw = local.x, local.y, local.yaw
-    rng_ = np.hypot(x, y)
-    bearing = np.arctan2(y, x)
-    c, s = np.cos(yaw), np.sin(yaw)
-    hl, hw = local.l / 2, local.w / 2
-    corners_x = (
-        x[:, None]
-        + np.array([1, 1, -1, -1]) * (hl * c)[:, None]
-        - np.array([1, -1, -1, 1]) * (hw * s)[:, None]
-    )
-    corners_y = (
-        y[:, None]
-        + np.array([1, 1, -1, -1]) * (hl * s)[:, None]
-        + np.array([1, -1, -1, 1]) * (hw * c)[:, None]
-    )
-    rel = wrap_angle(np.arctan2(corners_y, corners_x) - bearing[:, None])
-    return rng_, bearing, np.abs(rel).max(axis=1)
-
-
 def occlusion(local: Boxes) -> F64:
-    """Fraction of each box's angular extent hidden behind nearer boxes, seen from the origin.
-
-    Each nearer box hides the overlap of its angular interval with this one's; overlaps are
-    summed (an upper bound when hiders overlap each other) and capped at 1."""
-    n = len(local)
-    if n == 0:
-        return np.zeros(0)
-    dist, bearing, half = _angular_halfwidth(local)
-    d = wrap_angle(bearing[None, :] - bearing[:, None])  # [i, j]: bearing of j relative to i
-    lo = np.maximum(-half[:, None], d - half[None, :])
-    hi = np.minimum(half[:, None], d + half[None, :])
-    overlap = np.clip(hi - lo, 0.0, None)
-    nearer = dist[None, :] < dist[:, None]
-    hidden = (overlap * nearer).sum(axis=1) / np.maximum(2 * half, 1e-9)
-    return np.asarray(np.minimum(hidden, 1.0), dtype=np.float64)
+    """Fraction of each box's angular extent hidden behind nearer boxes, seen from the origin
+    (``simpletrack.core.occlusion``: the tracker's estimate uses the same geometry)."""
+    return core_occlusion(local.params[:, :2], local.yaw, local.l, local.w)
 
 
 def in_view(sensor: SensorSpec, local: Boxes) -> Bool:

@@ -12,13 +12,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from simpletrack.core.boxes import wrap_angle
+
 F64 = npt.NDArray[np.float64]
 _SIGNS_L = np.array([1.0, 1.0, -1.0, -1.0])
 _SIGNS_W = np.array([1.0, -1.0, -1.0, 1.0])
-
-
-def _wrap(a: F64) -> F64:
-    return np.asarray((a + np.pi) % (2 * np.pi) - np.pi, dtype=np.float64)
 
 
 def occlusion(xy: F64, yaw: F64, length: F64, width: F64) -> F64:
@@ -34,8 +32,8 @@ def occlusion(xy: F64, yaw: F64, length: F64, width: F64) -> F64:
     hl, hw = length / 2, width / 2
     cx = x[:, None] + _SIGNS_L * (hl * c)[:, None] - _SIGNS_W * (hw * s)[:, None]
     cy = y[:, None] + _SIGNS_L * (hl * s)[:, None] + _SIGNS_W * (hw * c)[:, None]
-    half = np.abs(_wrap(np.arctan2(cy, cx) - bearing[:, None])).max(axis=1)
-    d = _wrap(bearing[None, :] - bearing[:, None])  # [i, j]: bearing of j relative to i
+    half = np.abs(wrap_angle(np.arctan2(cy, cx) - bearing[:, None])).max(axis=1)
+    d = wrap_angle(bearing[None, :] - bearing[:, None])  # [i, j]: bearing of j relative to i
     lo = np.maximum(-half[:, None], d - half[None, :])
     hi = np.minimum(half[:, None], d + half[None, :])
     overlap = np.clip(hi - lo, 0.0, None)
