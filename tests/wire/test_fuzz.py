@@ -104,10 +104,9 @@ def _paths(obj: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str,
 PATHS = _paths(VALID_OBJ)
 
 
-@FUZZ
-@given(st.sampled_from(PATHS), msgpack_values | st.just("__delete__"))
-def test_one_field_replaced_or_removed(path: tuple[str, ...], value: Any) -> None:
-    obj = msgpack.unpackb(VALID, raw=False)
+def _replaced(payload: bytes, path: tuple[str, ...], value: Any) -> bytes:
+    """``payload`` with the field at ``path`` set to ``value`` (removed: ``"__delete__"``)."""
+    obj = msgpack.unpackb(payload, raw=False)
     target = obj
     for p in path[:-1]:
         target = target[p]
@@ -115,7 +114,13 @@ def test_one_field_replaced_or_removed(path: tuple[str, ...], value: Any) -> Non
         del target[path[-1]]
     else:
         target[path[-1]] = value
-    check(msgpack.packb(obj, use_bin_type=True))
+    return bytes(msgpack.packb(obj, use_bin_type=True))
+
+
+@FUZZ
+@given(st.sampled_from(PATHS), msgpack_values | st.just("__delete__"))
+def test_one_field_replaced_or_removed(path: tuple[str, ...], value: Any) -> None:
+    check(_replaced(VALID, path, value))
 
 
 VEHICLE = generate._vehicle_tracks()
@@ -127,15 +132,7 @@ VEHICLE_PATHS = _paths(msgpack.unpackb(VEHICLE, raw=False))
 def test_one_field_of_a_vehicle_frame_replaced_or_removed(
     path: tuple[str, ...], value: Any
 ) -> None:
-    obj = msgpack.unpackb(VEHICLE, raw=False)
-    target = obj
-    for p in path[:-1]:
-        target = target[p]
-    if value == "__delete__":
-        del target[path[-1]]
-    else:
-        target[path[-1]] = value
-    check(msgpack.packb(obj, use_bin_type=True))
+    check(_replaced(VEHICLE, path, value))
 
 
 @FUZZ

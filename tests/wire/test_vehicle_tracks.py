@@ -23,11 +23,11 @@ from simpletrack.wire import (
     encode_vehicle_track_frame,
     generate,
 )
-from simpletrack.wire.codec import pack
 from simpletrack.wire.fields import Invalid, string
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.messages import NAME_PATTERN
 from simpletrack.wire.track_ids import global_id, global_ids
+from tests.wire.test_contract import DELETE, mutated
 
 SENSORS = ["lidar_top", "radar_rear", "camera_front"]
 STATES = [SensorCondition.OK, SensorCondition.CLOCK, SensorCondition.UNSEEN]
@@ -135,20 +135,6 @@ def test_encoder_writes_the_documented_key_order() -> None:
     assert obj["sensor_state"] == ["ok", "clock", "unseen"]
 
 
-def _mutated(path: str, value: Any) -> bytes:
-    obj = msgpack.unpackb(_encode(_arrays()), raw=False)
-    *parents, last = path.split(".")
-    target = obj
-    for p in parents:
-        target = target[p]
-    if value is DELETE:
-        del target[last]
-    else:
-        target[last] = value
-    return pack(obj)
-
-
-DELETE = object()
 _STAMPS = _arrays().sensor_stamp_ns
 assert _STAMPS is not None
 
@@ -181,7 +167,7 @@ assert _STAMPS is not None
 def test_refusals_name_the_reason_and_field(
     path: str, value: Any, reason: str, field: str | None
 ) -> None:
-    out = decode_vehicle_track_frame(_mutated(path, value))
+    out = decode_vehicle_track_frame(mutated(path, value, _encode(_arrays())))
     assert isinstance(out, Rejection), out
     assert (out.reason.value, out.field) == (reason, field or path), out.detail
     assert (out.seq, out.stamp_ns) == (9, 5)
