@@ -5,7 +5,6 @@ in-order run has."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import numpy as np
 import pytest
 
 from simpletrack.core.config import preset
-from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.frames import Frame
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
 from simpletrack.core.lifecycle import UpdateKind
 from simpletrack.core.tracker import Tracker
@@ -26,23 +25,10 @@ from tests.core.fusion_helpers import (
     schedule,
     tracker_config,
 )
-from tests.core.test_step_kernels import configs, stream
+from tests.core.test_step_kernels import _same, configs, stream
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 ONE = FusionConfig(sensors={"lidar": SensorTrust()})
-
-
-def _same(a: Tracks, b: Tracks) -> None:
-    for f in dataclasses.fields(Tracks):
-        x, y = getattr(a, f.name), getattr(b, f.name)
-        if f.name == "boxes":
-            for col in ("params", "score", "cls"):
-                np.testing.assert_array_equal(getattr(x, col), getattr(y, col), err_msg=col)
-        elif x is None or y is None:
-            assert x is None and y is None, f.name
-        else:
-            assert x.dtype == y.dtype, f.name
-            np.testing.assert_array_equal(x, y, err_msg=f.name)
 
 
 def _one_sensor_agrees(frames: list[Frame], config: object, period_ns: int) -> int:
