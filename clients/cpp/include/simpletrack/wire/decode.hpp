@@ -265,6 +265,22 @@ inline std::string_view str_value(const Obj& v, const std::string& path) {
   return text_of(v);
 }
 
+// An enumeration's value (a string, or UTF-8 bytes, naming one of `names`); anything else is
+// `invalid_value` listing the names as pydantic does.
+template <class E, std::size_t N>
+E enum_value(const Obj& v, const std::array<std::string_view, N>& names, const std::string& path) {
+  std::optional<E> e;
+  if (v.type == mt::STR) e = parse_name<E>(names, text_of(v));
+  if (v.type == mt::BIN && utf8_length(bytes_of(v))) e = parse_name<E>(names, bytes_of(v));
+  if (e) return *e;
+  std::string expected;
+  for (std::size_t i = 0; i < N; ++i) {
+    expected += (i == 0 ? "'" : i + 1 == N ? " or '" : ", '");
+    expected += std::string(names[i]) + "'";
+  }
+  reject(Reason::invalid_value, path, "Input should be " + expected);
+}
+
 inline std::string text_value(const Obj& v, const std::string& path, std::size_t lo,
                               std::size_t hi) {
   const std::string_view s = str_value(v, path);
@@ -758,19 +774,7 @@ inline Result<FrameError> decode_frame_error(const void* data, std::size_t size,
     e.sensor = name_field(top, "sensor");
     e.seq = optional_int64_field(top, "seq");
     e.stamp_ns = optional_int64_field(top, "stamp_ns");
-    const Obj& reason = required(top, "reason");
-    std::optional<Reason> r;
-    if (reason.type == mt::STR) r = parse_reason(text_of(reason));
-    if (reason.type == mt::BIN && utf8_length(bytes_of(reason))) r = parse_reason(bytes_of(reason));
-    if (!r) {
-      std::string expected;
-      for (std::size_t i = 0; i < kReasonNames.size(); ++i) {
-        expected += (i == 0 ? "'" : i + 1 == kReasonNames.size() ? " or '" : ", '");
-        expected += std::string(kReasonNames[i]) + "'";
-      }
-      reject(Reason::invalid_value, "reason", "Input should be " + expected);
-    }
-    e.reason = *r;
+    e.reason = enum_value<Reason>(required(top, "reason"), kReasonNames, "reason");
     if (const Obj* field = optional(top, "field")) e.field = text_value(*field, "field", 0, 256);
     e.detail = text_value(required(top, "detail"), "detail", 0, 1024);
     e.instance = name_field(top, "instance");

@@ -80,11 +80,18 @@ constexpr std::string_view to_string(Reason r) {
   return kReasonNames[static_cast<std::size_t>(r)];
 }
 
-inline std::optional<Reason> parse_reason(std::string_view name) {
-  for (std::size_t i = 0; i < kReasonNames.size(); ++i) {
-    if (kReasonNames[i] == name) return static_cast<Reason>(i);
+// The enumerator E named `name` in `names` (E's values in order), or none.
+template <class E, std::size_t N>
+constexpr std::optional<E> parse_name(const std::array<std::string_view, N>& names,
+                                      std::string_view name) {
+  for (std::size_t i = 0; i < N; ++i) {
+    if (names[i] == name) return static_cast<E>(i);
   }
   return std::nullopt;
+}
+
+inline std::optional<Reason> parse_reason(std::string_view name) {
+  return parse_name<Reason>(kReasonNames, name);
 }
 
 // A fused sensor's condition (VehicleTrackFrame::sensor_state), in the order of
@@ -106,10 +113,7 @@ constexpr std::string_view to_string(SensorCondition c) {
 }
 
 inline std::optional<SensorCondition> parse_sensor_condition(std::string_view name) {
-  for (std::size_t i = 0; i < kSensorConditionNames.size(); ++i) {
-    if (kSensorConditionNames[i] == name) return static_cast<SensorCondition>(i);
-  }
-  return std::nullopt;
+  return parse_name<SensorCondition>(kSensorConditionNames, name);
 }
 
 // Codes of TrackColumns::state.

@@ -46,20 +46,8 @@ inline std::vector<SensorCondition> sensor_state_field(const Fields& top) {
   check_list(v, "sensor_state", kMaxFusedSensors);
   std::vector<SensorCondition> out;
   for (std::uint32_t i = 0; i < v.via.array.size; ++i) {
-    const Obj& x = v.via.array.ptr[i];
-    std::optional<SensorCondition> c;
-    if (x.type == mt::STR) c = parse_sensor_condition(text_of(x));
-    if (x.type == mt::BIN && utf8_length(bytes_of(x))) c = parse_sensor_condition(bytes_of(x));
-    if (!c) {
-      std::string expected;
-      for (std::size_t k = 0; k < kSensorConditionNames.size(); ++k) {
-        expected += (k == 0 ? "'" : k + 1 == kSensorConditionNames.size() ? " or '" : ", '");
-        expected += std::string(kSensorConditionNames[k]) + "'";
-      }
-      reject(Reason::invalid_value, "sensor_state." + std::to_string(i),
-             "Input should be " + expected);
-    }
-    out.push_back(*c);
+    out.push_back(enum_value<SensorCondition>(v.via.array.ptr[i], kSensorConditionNames,
+                                              "sensor_state." + std::to_string(i)));
   }
   return out;
 }
