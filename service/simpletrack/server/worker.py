@@ -410,13 +410,13 @@ class Worker(threading.Thread):
         t1 = time.perf_counter()
         m.stages["decode"].observe(t1 - t0)
         if isinstance(decoded, Rejection):
-            self._refuse(item, vehicle, sensor, state, decoded)
+            self._refuse(item, vehicle, sensor, state is not None, decoded)
             return
         frame = decoded.frame
         seq, stamp_ns = frame.seq, frame.stamp_ns
         mismatch = key_mismatch(frame, vehicle, sensor)
         if mismatch is not None:
-            self._refuse(item, vehicle, sensor, state, mismatch)
+            self._refuse(item, vehicle, sensor, state is not None, mismatch)
             return
         # Before the ordering rules: a stamp in seconds explains the refusals that follow.
         flagged = not self._quiet and self._plausible(vehicle, sensor, seq, decoded, item)
@@ -431,10 +431,10 @@ class Worker(threading.Thread):
                     f"worker's silent for over reset_gap_s"
                 )
                 r = Rejection(ErrorReason.TOO_MANY_SENSORS, None, detail, seq, stamp_ns)
-                self._refuse(item, vehicle, sensor, None, r)
+                self._refuse(item, vehicle, sensor, False, r)
                 return
             state = added
-        self._step_sensor(item, decoded, state, arrival, flagged, fresh, t1)
+        self._step_sensor(item, decoded, state, arrival, flagged, fresh, (t0, t1))
 
     def _per_sensor(
         self,
@@ -454,7 +454,8 @@ class Worker(threading.Thread):
             state = vehicle_state.per_sensor[sensor] = SensorState(
                 vehicle, sensor, self.ctx.new_tracker(), id_base=floor
             )
-        self._step_sensor(item, decoded, state, arrival, False, fresh, time.perf_counter())
+        now = time.perf_counter()
+        self._step_sensor(item, decoded, state, arrival, False, fresh, (now, now))
 
     def _step_sensor(
         self,
@@ -464,10 +465,12 @@ class Worker(threading.Thread):
         arrival: Arrival,
         flagged: bool,
         fresh: bool,
-        t1: float,
+        times: tuple[float, float],
     ) -> None:
         """A sensor's frame, decoded and checked, through its own tracker: ordering rules,
-        step, the finite guard, the id reservation, publish."""
+        step, the finite guard, the id reservation, publish. ``times``: when its handling
+        began and when its decoding ended (perf_counter)."""
+        t0, t1 = times
         ctx, m = self.ctx, self.ctx.metrics
         vehicle, sensor = state.vehicle, state.sensor
         frame = decoded.frame
@@ -480,7 +483,7 @@ class Worker(threading.Thread):
                 verdict = check_order(state.last, arrival, self.rules)
             if verdict.reason is not None:
                 r = Rejection(verdict.reason, verdict.field, verdict.detail, seq, stamp_ns)
-                self._refuse(item, vehicle, sensor, state, r)
+                self._refuse(item, vehicle, sensor, True, r)
                 return
             state.keep_undo()
             if verdict.order.resets:
@@ -513,7 +516,7 @@ class Worker(threading.Thread):
             state.before = None  # what keep_undo holds is no longer the state before the last
             detail = f"tracker: {e}"[:300]
             r = Rejection(ErrorReason.INTERNAL_ERROR, None, detail, seq, stamp_ns)
-            self._refuse(item, vehicle, sensor, state, r)
+            self._refuse(item, vehicle, sensor, True, r)
             return
         t2 = time.perf_counter()
         m.stages["track"].observe(t2 - t1)
@@ -554,7 +557,7 @@ class Worker(threading.Thread):
                 seq=seq,
                 boxes=len(decoded.boxes),
                 tracks=len(wire),
-                ms=round((t3 - t1) * 1e3, 3),
+                ms=round((t3 - t0) * 1e3, 3),
             )
 
     def _plausible(
@@ -642,7 +645,7 @@ class Worker(threading.Thread):
             field=r.field,
             id_base=s.id_base,
         )
-        self._refuse(item, s.vehicle, s.sensor, s, r)
+        self._refuse(item, s.vehicle, s.sensor, True, r)
         return False
 
     def _reset(self, s: SensorState, verdict: Verdict, seq: int, stamp_ns: int) -> None:
@@ -668,17 +671,16 @@ class Worker(threading.Thread):
         item: Inbound,
         vehicle: str,
         sensor: str,
-        state: SensorState | bool | None,
+        held: bool,
         r: Rejection,
         counted: bool = False,
     ) -> None:
-        """Count, publish and log a refusal; ``state``: the sensor's (or whether its stream
-        is held here: it then has a declared errors publisher)."""
+        """Count, publish and log a refusal; ``held``: whether the frame's stream is held here
+        (it then has a declared errors publisher)."""
         if self._quiet:
             return  # the member before this one announced it
         if not counted:
             self.ctx.metrics.count_error(r.reason, vehicle)
-        held = state if isinstance(state, bool) else state is not None
         try:
             self.outbox.refuse(vehicle, sensor, r, item.received_ns, held=held)
         except ValueError as e:  # a notice that cannot be built: counted above, never a crash
