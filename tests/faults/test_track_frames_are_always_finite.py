@@ -178,3 +178,16 @@ def test_numpy_floating_point_errors_are_recorded_not_printed(
             pass
         np.array([3e38], np.float32) * np.float32(10)
     assert fp.kinds == ["overflow", "invalid value"]
+
+
+def test_a_fused_frames_own_columns_are_guarded_too() -> None:
+    """A vehicle's message carries existence beside a sensor's columns: the same guard."""
+    from dataclasses import replace
+
+    fused = replace(
+        _tracks([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]),
+        existence=np.array([0.5, np.nan]),
+        sensor_stamp_ns=np.zeros((2, 2), np.int64),
+    )
+    assert first_non_finite(fused) == ("existence", 1)
+    assert non_finite_refusal(replace(fused, existence=np.array([0.5, 1.0])), 1, 2) is None

@@ -14,10 +14,11 @@ from types import TracebackType
 import numpy as np
 
 from simpletrack.wire.codec import Rejection
-from simpletrack.wire.columns import TRACK_COLUMNS, TrackArrays
+from simpletrack.wire.columns import VEHICLE_TRACK_COLUMNS, TrackArrays
 from simpletrack.wire.reasons import ErrorReason
 
-FLOAT_COLUMNS = tuple(c.name for c in TRACK_COLUMNS if c.finite)
+# A vehicle's columns are a sensor's and ``existence``: absent (None) in a sensor's tracks.
+FLOAT_COLUMNS = tuple(c.name for c in VEHICLE_TRACK_COLUMNS if c.finite)
 
 
 def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
@@ -47,7 +48,7 @@ def non_finite_refusal(tracks: TrackArrays, seq: int, stamp_ns: int) -> Rejectio
         ErrorReason.INTERNAL_ERROR,
         f"tracks.{column}",
         f"the tracker produced NaN or inf in tracks.{column} row {row}; the frame was not "
-        "published and the sensor's tracker was reset",
+        "published and the tracker that produced it was reset",
         seq,
         stamp_ns,
     )

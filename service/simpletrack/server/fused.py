@@ -12,9 +12,8 @@ import logging
 import time
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from simpletrack.core.vehicle import Condition, Outcome, SensorInput
+from simpletrack.server.finite import non_finite_refusal
 from simpletrack.server.intake import Inbound
 from simpletrack.server.logs import get_logger
 from simpletrack.server.sensors import Arrival, Order, check_order, key_mismatch, lead_ns
@@ -193,12 +192,12 @@ class FusedFrames:
         vt = result.tracks
         state.last = arrival
         wire = vehicle_tracks_to_wire(vt.tracks, vt.existence, vt.sensor_stamp_ns, ctx.classes)
-        if not np.isfinite(wire.center).all() or not np.isfinite(wire.score).all():
-            log.error("non_finite_tracks", vehicle=state.vehicle, sensor=sensor, seq=arrival.seq)
-            state.tracker.reset()
-            w._refuse(item, state.vehicle, sensor, True, Rejection(
-                ErrorReason.INTERNAL_ERROR, "tracks", "non-finite tracks", arrival.seq,
-                arrival.stamp_ns))  # fmt: skip
+        refusal = non_finite_refusal(wire, arrival.seq, arrival.stamp_ns)
+        if refusal is not None:  # never published: subscribers' decoders refuse NaN and inf
+            log.error("non_finite_tracks", vehicle=state.vehicle, sensor=sensor,
+                      seq=arrival.seq, field=refusal.field)  # fmt: skip
+            self._reset(state, "non_finite")
+            w._refuse(item, state.vehicle, sensor, True, refusal)
             return
         w.sensors.reserve_ids(state)
         quiet = waiting.replayed and (
@@ -246,16 +245,20 @@ class FusedFrames:
         lead = lead_ns(last, arrival)
         if lead is not None and lead <= gap:
             return True
+        self._reset(state, Order.RESET_GAP.value)
+        log.warning("tracker_reset", vehicle=state.vehicle, sensor=VEHICLE_STREAM,
+                    seq=arrival.seq, reason=Order.RESET_GAP.value,
+                    jump_s=round((arrival.stamp_ns - last.stamp_ns) * 1e-9, 3))  # fmt: skip
+        return False
+
+    def _reset(self, state: VehicleState, reason: str) -> None:
+        """The vehicle's tracks dropped (ids continue above the old ones), counted."""
         dropped = state.active_tracks
         state.tracker.reset()
         state.resets += 1
         state.active_tracks = 0
         self.w.ctx.metrics.active_tracks.dec(dropped)
-        self.w.ctx.metrics.resets.labels(reason=Order.RESET_GAP.value).inc()
-        log.warning("tracker_reset", vehicle=state.vehicle, sensor=VEHICLE_STREAM,
-                    seq=arrival.seq, reason=Order.RESET_GAP.value,
-                    jump_s=round((arrival.stamp_ns - last.stamp_ns) * 1e-9, 3))  # fmt: skip
-        return False
+        self.w.ctx.metrics.resets.labels(reason=reason).inc()
 
     def _log_condition(self, state: VehicleState, sensor: str, before: Condition) -> None:
         rec = state.tracker.records[sensor]
