@@ -13,7 +13,7 @@ import time
 from typing import TYPE_CHECKING
 
 from simpletrack.core.vehicle import Condition, Outcome, SensorInput
-from simpletrack.server.finite import non_finite_refusal
+from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.intake import Inbound
 from simpletrack.server.logs import get_logger
 from simpletrack.server.sensors import Arrival, Order, check_order, key_mismatch, lead_ns
@@ -164,8 +164,10 @@ class FusedFrames:
             after_gap=after_gap,
         )
         before = state.tracker.records[sensor].condition
+        fp = FloatingPointErrors()
         try:
-            result = state.tracker.apply(inp)
+            with fp:
+                result = state.tracker.apply(inp)
         except Exception as e:
             log.error("tracker_failed", exc=True, vehicle=state.vehicle, sensor=sensor,
                       seq=arrival.seq)  # fmt: skip
@@ -173,6 +175,9 @@ class FusedFrames:
             w._refuse(item, state.vehicle, sensor, True, Rejection(
                 ErrorReason.INTERNAL_ERROR, None, detail, arrival.seq, arrival.stamp_ns))  # fmt: skip
             return
+        if fp.kinds:  # numpy's floating-point errors as events, as for a sensor's step
+            log.warning("numeric_warning", vehicle=state.vehicle, sensor=sensor,
+                        seq=arrival.seq, kinds=fp.kinds)  # fmt: skip
         m.fusion_frames.labels(outcome=result.outcome.value).inc()
         state.taken[sensor] = arrival
         self._log_condition(state, sensor, before)
