@@ -110,10 +110,12 @@ class FusedFrames:
         if not len(state.buffer):
             self._waiting.discard(f"{state.vehicle}/{VEHICLE_STREAM}")
 
-    def release_due(self) -> None:
-        """The vehicles whose first waiting frame's window is over (a frame of a vehicle
-        goes at once when its sensors pass it: ``track`` releases then)."""
+    def release_due(self) -> float | None:
+        """Release the vehicles whose first waiting frame's window is over (a frame of a
+        vehicle goes at once when its sensors pass it: ``track`` releases then); returns when
+        the next one is due (None: nothing waits)."""
         now = time.monotonic()
+        nxt: float | None = None
         for key in list(self._waiting):
             state = self.w.sensors.get(key)
             if not isinstance(state, VehicleState):
@@ -121,7 +123,11 @@ class FusedFrames:
                 continue
             due = state.buffer.due()
             if due is None or due <= now:
-                self.release(state)
+                self.release(state)  # an empty buffer: only leaves the waiting set
+                due = state.buffer.due()
+            if due is not None:
+                nxt = due if nxt is None else min(nxt, due)
+        return nxt
 
     def flush_all(self) -> None:
         for key in list(self._waiting):
@@ -129,16 +135,6 @@ class FusedFrames:
             if isinstance(state, VehicleState):
                 self.release(state, flush=True)
         self._waiting.clear()
-
-    def due(self) -> float | None:
-        times = []
-        for key in self._waiting:
-            state = self.w.sensors.get(key)
-            if isinstance(state, VehicleState):
-                d = state.buffer.due()
-                if d is not None:
-                    times.append(d)
-        return min(times, default=None)
 
     def _apply(self, state: VehicleState, waiting: Waiting) -> None:
         w, ctx, m = self.w, self.w.ctx, self.w.ctx.metrics

@@ -170,17 +170,17 @@ class Worker(threading.Thread):
             self.fused.release(state, flush=True)
 
     # ------------------------------------------------------------------ the loop
-    def _wait_s(self) -> float:
+    def _wait_s(self, due: float | None) -> float:
         """How long the loop may wait for an item: until a fused vehicle's next frame is
-        due (core/reorder.py), or housekeeping."""
-        due = self.fused.due()
+        ``due`` (core/reorder.py), or housekeeping."""
         if due is None:
             return HOUSEKEEPING_S
         return min(HOUSEKEEPING_S, max(0.0, due - time.monotonic()) + 0.001)
 
     def run(self) -> None:
+        due: float | None = None  # read under the lock, where the vehicles' buffers change
         while True:
-            item = self.queue.get(timeout=self._wait_s())
+            item = self.queue.get(timeout=self._wait_s(due))
             if item is None and self.queue.closed:
                 break
             try:
@@ -199,7 +199,7 @@ class Worker(threading.Thread):
                         self._announce(item)
                     elif item is not None:
                         item()
-                    self.fused.release_due()
+                    due = self.fused.release_due()
                     if time.monotonic() >= self._next_housekeeping:
                         self._housekeeping()
             except Exception:  # never let one frame kill the thread of many sensors
