@@ -35,16 +35,10 @@ class VehicleCollector:
         has one."""
         if len(frames) != len(self.sensors):
             return
-        first = frames[0]
-        stamp = Stamp(
-            first.vehicle_truth_ids,
-            first.vehicle_truth,
-            np.asarray(first.vehicle_truth_ignore),
-            {f.sensor for f in frames},
-        )
+        stamp = Stamp.of(frames)
         for f in frames:
             stamp.detections[f.sensor] = detections_alone(f.detections, f.pose, self.config)
-        pending = self._pending.setdefault(first.vehicle, {})
+        pending = self._pending.setdefault(frames[0].vehicle, {})
         pending[stamp_ns] = stamp
         while len(pending) > HORIZON:
             del pending[min(pending)]  # its tracks never came: lost, not leaked

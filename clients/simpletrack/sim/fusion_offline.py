@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from simpletrack.core.config import TrackerConfig
 from simpletrack.core.frames import Frame
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
@@ -57,7 +55,7 @@ def run_offline(
         for vehicle, frames in by_vehicle.items():
             v = vehicles.setdefault(vehicle, VehicleTracker(config, fusion))
             fused = None
-            stamp = None
+            stamp = Stamp.of(frames)
             for f in frames:  # one stamp, the sensors in the configured order
                 stamp_ns = round(f.stamp * 1e9)
                 if f.sensor in fusion.sensors:  # a sensor left out: its own tracks only
@@ -65,19 +63,11 @@ def run_offline(
                     if r.tracks is not None:
                         t = r.tracks
                         fused = (t.tracks.ids.copy(), t.tracks.boxes, t.existence)
-                if stamp is None:
-                    first = frames[0]
-                    stamp = Stamp(
-                        first.vehicle_truth_ids,
-                        first.vehicle_truth,
-                        np.asarray(first.vehicle_truth_ignore),
-                        {g.sensor for g in frames},
-                    )
                 tracker = trackers.setdefault((vehicle, f.sensor), Tracker(config))
                 out = tracker.step(Frame(f.detections, f.stamp, f.pose))
                 stamp.tracks[f.sensor] = (out.ids.copy(), out.boxes)
                 stamp.detections[f.sensor] = detections_alone(f.detections, f.pose, config)
-            if stamp is not None and len(frames) == len(names):
+            if len(frames) == len(names):
                 stamp.fused = fused
                 scores.vehicle(vehicle).score(stamp)
     return scores

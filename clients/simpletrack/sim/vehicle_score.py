@@ -15,7 +15,9 @@ Pure bookkeeping over ``MotScorer``: the live demo and the settings sweep both u
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -23,6 +25,9 @@ import numpy.typing as npt
 from simpletrack.core.boxes import Boxes
 from simpletrack.eval.clear_mot import MotCounts, MotScorer
 from simpletrack.sim.baseline import without_identity
+
+if TYPE_CHECKING:
+    from simpletrack.sim.simulator import SensorFrame
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -45,6 +50,17 @@ class Stamp:
     detections: dict[str, Boxes] = field(default_factory=dict)  # world frame, baseline kept
     tracks: dict[str, tuple[I64, Boxes]] = field(default_factory=dict)
     fused: tuple[I64, Boxes, F64] | None = None  # ids, boxes, existence
+
+    @classmethod
+    def of(cls, frames: Sequence[SensorFrame]) -> Stamp:
+        """The stamp of one vehicle's frames of one tick (its truth is theirs)."""
+        first = frames[0]
+        return cls(
+            first.vehicle_truth_ids,
+            first.vehicle_truth,
+            np.asarray(first.vehicle_truth_ignore),
+            {f.sensor for f in frames},
+        )
 
 
 def _concat(parts: list[Boxes]) -> Boxes:
