@@ -27,8 +27,10 @@ VALID = (
     "detection_extrinsic",
     "tracks_basic",
     "tracks_v2",
+    "tracks_epoch",
     "vehicle_tracks_basic",
     "vehicle_tracks_empty",
+    "vehicle_tracks_epoch",
     "error_unknown_class",
     "error_sensor_flagged",
 )

@@ -125,7 +125,7 @@ def test_a_version_1_reader_refuses_version_2() -> None:
 @pytest.mark.parametrize(
     ("path", "value", "reason", "field"),
     [
-        ("schema_version", 3, "wrong_version", "schema_version"),
+        ("schema_version", 4, "wrong_version", "schema_version"),
         ("schema_version", 0, "wrong_version", "schema_version"),
         ("tracks.age_s", None, "wrong_type", "tracks.age_s"),
         ("tracks.covariance", b"\0" * 8, "column_length", "tracks.covariance"),
@@ -159,8 +159,8 @@ def test_non_finite_covariance_is_refused() -> None:
 def test_encoder_refuses_what_no_reader_could_take() -> None:
     with pytest.raises(ValueError, match="needs age_s"):
         _encode(replace(_arrays(), age_s=None), 2)
-    with pytest.raises(ValueError, match="schema_version 3"):
-        _encode(_arrays(), 3)
+    with pytest.raises(ValueError, match="schema_version 4"):
+        _encode(_arrays(), 4)
     # Left to choose, the encoder sends version 2 when the ages are there, else version 1.
     assert _decode(_encode(_arrays(), None))[0].schema_version == 2
     bare = replace(_arrays(), covariance=None, age_s=None, time_since_update_s=None)

@@ -142,7 +142,7 @@ assert _STAMPS is not None
 @pytest.mark.parametrize(
     ("path", "value", "reason", "field"),
     [
-        ("schema_version", 2, "wrong_version", "schema_version"),
+        ("schema_version", 3, "wrong_version", "schema_version"),
         ("tracks.sensor_stamp_ns", _STAMPS[:, :2].tobytes(), "column_length", None),
         ("sensors", SENSORS[:2], "invalid_value", "sensor_state"),
         ("sensors", [*SENSORS, "radar_front"], "invalid_value", "sensor_state"),

@@ -347,7 +347,7 @@ void track_versions() {
   v2.schema_version = 1;
   const auto back = wire::decode_track_frame(wire::encode(v2));
   CHECK(back.ok() && !back.value().tracks.covariance && !back.value().tracks.age_s);
-  // Version 2 needs its ages; no version 3.
+  // Version 2 needs its ages; no version 4.
   wire::TrackFrame bad = two_tracks();
   bad.schema_version = 2;
   bool threw = false;
@@ -357,9 +357,59 @@ void track_versions() {
     threw = true;
   }
   CHECK(threw);
+  wire::TrackFrame v4 = v2;
+  v4.schema_version = 4;
+  threw = false;
+  try {
+    (void)wire::encode(v4);
+  } catch (const wire::EncodeError&) {
+    threw = true;
+  }
+  CHECK(threw);
+  // The custody epoch: version 3 with the ages; an earlier version leaves it out.
+  wire::TrackFrame v3 = v2;
+  v3.schema_version.reset();
+  v3.epoch = std::uint64_t{1} << 40;
+  const Bytes b3 = wire::encode(v3);
+  const auto d3 = wire::decode_track_frame(b3);
+  CHECK(d3.ok() && d3.value().schema_version == 3 && d3.value().epoch == v3.epoch);
+  CHECK(d3.ok() && wire::encode(d3.value()) == b3);
+  wire::TrackFrame pinned = v3;
+  pinned.schema_version = 2;
+  wire::TrackFrame plain = v3;
+  plain.schema_version = 2, plain.epoch.reset();
+  CHECK(wire::encode(pinned) == wire::encode(plain));
+  const auto d2e = wire::decode_track_frame(wire::encode(pinned));
+  CHECK(d2e.ok() && !d2e.value().epoch);
+  wire::TrackFrame huge = v3;
+  huge.epoch = std::uint64_t{1} << 63;
+  threw = false;
+  try {
+    (void)wire::encode(huge);
+  } catch (const wire::EncodeError&) {
+    threw = true;
+  }
+  CHECK(threw);
   CHECK(wire::covariance_at(upper, 0, 5) == 5.0f && wire::covariance_at(upper, 1, 1) == 6.0f);
   CHECK(wire::covariance_at(upper, 4, 1) == 9.0f && wire::covariance_at(upper, 5, 5) == 20.0f);
   CHECK(v1.global_id(1) == "veh-1/lidar/1099511627776");
+}
+
+void epoch_filter() {
+  simpletrack::EpochFilter f;
+  const std::string k = "fleet/car-1/lidar/tracks";
+  CHECK(f.accept(k, std::nullopt) && !f.highest(k));  // a service of before epochs
+  CHECK(f.accept(k, 1) && f.accept(k, 2));
+  CHECK(!f.accept(k, 1));  // the fenced holder, late
+  CHECK(f.accept(k, 2));   // equal: the repeat rule decides
+  CHECK(f.accept(k, std::nullopt) && f.highest(k) == std::optional<std::uint64_t>(2));
+  CHECK(!f.accept(k, 0));
+  CHECK(f.accept("fleet/car-1/@vehicle/tracks", 0));  // each stream on its own
+  for (std::size_t i = 0; i < simpletrack::EpochFilter::kMaxKeys; ++i) {
+    (void)f.accept(std::to_string(i), 5);
+  }
+  CHECK(f.size() <= simpletrack::EpochFilter::kMaxKeys);
+  CHECK(!f.highest(k) && f.accept(k, 1));  // forgotten: bounded memory
 }
 
 }  // namespace
@@ -375,5 +425,6 @@ int main() {
   caps();
   frame_errors();
   track_versions();
+  epoch_filter();
   return check::summary("codec_cases");
 }

@@ -181,10 +181,26 @@ void a_vehicle_frame_breaking_its_rules_is_refused() {
            "sensor_state.1"));
   CHECK(is(refusal(with_entry(b, "sensor", [](auto& pk) { pk.pack(std::string("camera")); })),
            wire::Reason::invalid_value, "sensor"));
-  CHECK(is(refusal(with_entry(b, "schema_version", [](auto& pk) { pk.pack(2); })),
+  CHECK(is(refusal(with_entry(b, "schema_version", [](auto& pk) { pk.pack(3); })),
            wire::Reason::wrong_version, "schema_version"));
   CHECK(is(refusal(with_entry(b, "key_frame", [](auto& pk) { pk.pack(true); })),
            wire::Reason::extra_field, "key_frame"));
+}
+
+void a_vehicle_frame_with_an_epoch_is_version_2() {
+  wire::VehicleTrackFrame f = fused();
+  CHECK(wire::encode(f)[16] == 1);  // without an epoch: version 1, the bytes of before
+  f.epoch = (std::uint64_t{1} << 32) + 1;
+  const Bytes b = wire::encode(f);
+  CHECK(b[16] == 2);
+  const auto back = wire::decode_vehicle_track_frame(b);
+  CHECK(back.ok() && back.value() == f && back.value().version() == 2);
+  CHECK(back.ok() && wire::encode(back.value()) == b);
+  // An epoch in a frame that says version 1 is refused, as a version-1 reader would.
+  CHECK(is(refusal(with_entry(b, "schema_version", [](auto& pk) { pk.pack(1); })),
+           wire::Reason::extra_field, "epoch"));
+  CHECK(is(refusal(with_entry(b, "epoch", [](auto& pk) { pk.pack(-1); })),
+           wire::Reason::invalid_value, "epoch"));
 }
 
 bool encode_throws(const std::function<void(wire::VehicleTrackFrame&)>& mutate) {
@@ -227,6 +243,7 @@ int main() {
   a_vehicle_frame_round_trips();
   a_vehicle_frame_breaking_its_rules_is_refused();
   the_vehicle_encoder_refuses_what_the_decoder_would();
+  a_vehicle_frame_with_an_epoch_is_version_2();
   the_fusion_reasons();
   return check::summary("fusion_cases");
 }

@@ -123,6 +123,7 @@ wire::VehicleTrackFrame vehicle_track(const json& d) {
   }
   // An empty frame's stamps are [] in the JSON: no rows, whatever the number of sensors.
   f.tracks = track_columns(d.at("tracks"));
+  f.epoch = maybe<std::uint64_t>(d, "epoch");
   return f;
 }
 
@@ -136,6 +137,7 @@ wire::TrackFrame track(const json& d) {
   f.received_ns = d.at("received_ns"), f.published_ns = d.at("published_ns");
   f.schema_version = d.at("schema_version").get<int>();
   f.tracks = track_columns(d.at("tracks"));
+  f.epoch = maybe<std::uint64_t>(d, "epoch");
   return f;
 }
 

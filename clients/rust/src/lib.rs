@@ -7,6 +7,7 @@
 //! - [`TrackSubscriber`], [`ErrorSubscriber`]: the planner side.
 //! - [`ZenohOptions`]: a session with the service's safe defaults (no multicast scouting).
 
+mod epoch_filter;
 mod error;
 mod errors;
 mod invalid;
@@ -16,6 +17,7 @@ mod session;
 mod subscriber;
 pub mod wire;
 
+pub use epoch_filter::{EpochFilter, MAX_EPOCH_KEYS};
 pub use error::{Error, Result};
 pub use errors::{ErrorCallback, ErrorSubscriber, ErrorSubscriberOptions};
 pub use invalid::InvalidCallback;

@@ -3,7 +3,9 @@
 //!
 //! A frame already delivered (the same key, `seq` and `stamp_ns`: what two instances of a
 //! group both send when one died between publishing a frame and the other hearing of it) is
-//! not delivered again; `duplicates()` counts them.
+//! not delivered again; `duplicates()` counts them. Nor is a frame of a fenced holder (an
+//! instance paused or cut off after another took its stream over): its `epoch` is below the
+//! highest its stream has shown (`EpochFilter`); `stale()` counts them.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -14,6 +16,7 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 
+use crate::epoch_filter::EpochFilter;
 use crate::error::{check_id, Result};
 use crate::invalid::{InvalidCallback, Invalids};
 use crate::mailbox::Mailbox;
@@ -144,10 +147,38 @@ impl Recent {
     }
 }
 
+/// What a subscriber keeps per stream key to decide whether to deliver a frame.
+#[derive(Default)]
+struct Streams {
+    epochs: EpochFilter,
+    recent: Recent,
+}
+
+/// Why a frame was not delivered.
+enum Refused {
+    Stale,
+    Repeat,
+}
+
+impl Streams {
+    /// Fenced first: a stale holder's frame is no repeat to remember. Check and record are
+    /// one step under the caller's lock (samples of two links come on two threads).
+    fn admit(&mut self, key: &str, frame: &TrackFrame) -> std::result::Result<(), Refused> {
+        if !self.epochs.accept(key, frame.epoch) {
+            return Err(Refused::Stale);
+        }
+        if self.recent.is_repeat(key, frame.seq, frame.stamp_ns) {
+            return Err(Refused::Repeat);
+        }
+        Ok(())
+    }
+}
+
 struct Shared {
     mailbox: Mailbox<TrackMessage>,
-    recent: Mutex<Recent>,
+    streams: Mutex<Streams>,
     duplicates: AtomicU64,
+    stale: AtomicU64,
     invalid: Invalids,
     callback: Option<TrackCallback>,
     limits: DecodeLimits,
@@ -161,14 +192,21 @@ impl Shared {
             Ok(f) => f,
             Err(r) => return self.invalid.record(key, r),
         };
-        let repeat = self
-            .recent
+        let verdict = self
+            .streams
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .is_repeat(key, frame.seq, frame.stamp_ns);
-        if repeat {
-            self.duplicates.fetch_add(1, Ordering::Relaxed);
-            return;
+            .admit(key, &frame);
+        match verdict {
+            Ok(()) => {}
+            Err(Refused::Stale) => {
+                self.stale.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+            Err(Refused::Repeat) => {
+                self.duplicates.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
         }
         let msg = TrackMessage {
             key: key.to_owned(),
@@ -197,8 +235,9 @@ impl TrackSubscriber {
         };
         let shared = Arc::new(Shared {
             mailbox: Mailbox::new(options.buffer),
-            recent: Mutex::new(Recent::default()),
+            streams: Mutex::new(Streams::default()),
             duplicates: AtomicU64::new(0),
+            stale: AtomicU64::new(0),
             invalid: Invalids::new("track frame", options.on_invalid.clone()),
             callback: options.callback.clone(),
             limits: options.limits,
@@ -264,6 +303,11 @@ impl TrackSubscriber {
         self.shared.duplicates.load(Ordering::Relaxed)
     }
 
+    /// Frames of a fenced holder (an epoch below its stream's highest), not delivered.
+    pub fn stale(&self) -> u64 {
+        self.shared.stale.load(Ordering::Relaxed)
+    }
+
     /// Payloads on a tracks key that did not decode.
     pub fn invalid(&self) -> u64 {
         self.shared.invalid.count()
@@ -316,6 +360,42 @@ mod tests {
         }
         assert!(!r.is_repeat("k", 0, 0)); // pushed out by the newer ones
         assert!(r.is_repeat("k", RECENT_FRAMES as u64, RECENT_FRAMES as u64));
+    }
+
+    fn frame(seq: u64, stamp_ns: u64, epoch: Option<u64>) -> TrackFrame {
+        TrackFrame {
+            vehicle: "v".into(),
+            sensor: "s".into(),
+            seq,
+            stamp_ns,
+            frame_id: "world".into(),
+            pose: None,
+            key_frame: true,
+            instance: "svc".into(),
+            received_ns: 0,
+            published_ns: 0,
+            tracks: crate::wire::TrackColumns::default(),
+            schema_version: 3,
+            epoch,
+        }
+    }
+
+    #[test]
+    fn a_fenced_holders_frame_is_stale_and_an_equal_epoch_follows_the_repeat_rule() {
+        let mut s = Streams::default();
+        let k = "fleet/v/s/tracks";
+        assert!(s.admit(k, &frame(0, 100, Some(1))).is_ok());
+        assert!(s.admit(k, &frame(1, 200, Some(2))).is_ok());
+        assert!(matches!(
+            s.admit(k, &frame(2, 300, Some(1))),
+            Err(Refused::Stale)
+        ));
+        assert!(matches!(
+            s.admit(k, &frame(1, 200, Some(2))),
+            Err(Refused::Repeat)
+        ));
+        assert!(s.admit(k, &frame(3, 400, None)).is_ok()); // a service of before epochs
+        assert!(s.admit(k, &frame(4, 500, Some(2))).is_ok());
     }
 
     #[test]

@@ -82,23 +82,31 @@ fn vehicle_track_frame_json(t: &VehicleTrackFrame) -> Value {
     tracks["existence"] = c.existence.as_ref().map_or(Value::Null, |e| floats(e));
     tracks["sensor_stamp_ns"] = json!(c.sensor_stamp_ns);
     let states: Vec<&str> = t.sensor_state.iter().map(|s| s.as_str()).collect();
-    json!({
-        "schema_version": 1,
+    let mut v = json!({
+        "schema_version": t.schema_version(),
         "vehicle": t.vehicle, "seq": t.seq, "stamp_ns": t.stamp_ns, "sensor": t.sensor,
         "sensor_seq": t.sensor_seq, "frame_id": t.frame_id, "pose": pose(&t.pose),
         "instance": t.instance, "received_ns": t.received_ns, "published_ns": t.published_ns,
         "sensors": t.sensors, "sensor_state": states, "tracks": tracks,
-    })
+    });
+    if let Some(epoch) = t.epoch {
+        v["epoch"] = json!(epoch);
+    }
+    v
 }
 
 fn track_frame_json(t: &TrackFrame) -> Value {
-    json!({
+    let mut v = json!({
         "schema_version": t.schema_version,
         "vehicle": t.vehicle, "sensor": t.sensor, "seq": t.seq, "stamp_ns": t.stamp_ns,
         "frame_id": t.frame_id, "pose": pose(&t.pose), "key_frame": t.key_frame,
         "instance": t.instance, "received_ns": t.received_ns, "published_ns": t.published_ns,
         "tracks": tracks_json(&t.tracks, t.schema_version),
-    })
+    });
+    if let Some(epoch) = t.epoch {
+        v["epoch"] = json!(epoch);
+    }
+    v
 }
 
 fn error_json(e: &FrameError) -> Value {

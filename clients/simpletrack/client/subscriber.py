@@ -16,7 +16,10 @@ closes the session the subscriber opened: no thread stays blocked at exit.
 
 A frame already delivered (the same sensor, ``seq`` and ``stamp_ns``: what two instances of
 a group would both send if one died between publishing a frame and the other hearing it) is
-not delivered again; ``duplicates`` counts them.
+not delivered again; ``duplicates`` counts them. Nor is a frame of a fenced holder (an
+instance paused or cut off after another took its stream over): its custody ``epoch`` is
+below the highest the stream has shown; ``stale`` counts them (schemas/README.md, "Custody
+epoch (fencing)"; ``simpletrack.client.stream_filter``).
 
 A payload on a tracks key that does not decode is never silent: it is counted (``invalid``,
 ``invalid_reasons``), logged as a warning on this module's logger (at most one line a second,
@@ -29,7 +32,6 @@ import contextlib
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import AsyncIterator, Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Generic, Self, TypeVar
@@ -41,6 +43,7 @@ import zenoh
 from simpletrack.client.exit_hooks import close_before_thread_join
 from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import _close_quietly, check_name, default_options
+from simpletrack.client.stream_filter import StreamFilter, Verdict
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.wire import (
     Rejection,
@@ -59,8 +62,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 INVALID_LOG_INTERVAL_S = 1.0  # a stream of garbage must not flood the planner's log
-RECENT_FRAMES = 16  # per key: a duplicate comes within a takeover, a few frames at most
-MAX_KEYS = 100_000
 
 
 class _TrackList:
@@ -89,6 +90,12 @@ class _TrackList:
     @property
     def stamp_ns(self) -> int:
         return self.frame.stamp_ns
+
+    @property
+    def epoch(self) -> int | None:
+        """The stream's custody epoch when the service sent one (TrackFrame version 3,
+        VehicleTrackFrame version 2), else None."""
+        return self.frame.epoch
 
     @property
     def latency_s(self) -> float:
@@ -142,7 +149,8 @@ class TrackMessage(_TrackList):
 
     @property
     def schema_version(self) -> int:
-        """1 or 2; only 2 carries ``tracks.covariance``, ``age_s`` and ``time_since_update_s``."""
+        """1, 2 or 3; 2 and 3 carry ``tracks.covariance``, ``age_s`` and
+        ``time_since_update_s``, 3 the ``epoch``."""
         return self.frame.schema_version
 
 
@@ -202,7 +210,8 @@ M = TypeVar("M", TrackMessage, VehicleTrackMessage)
 
 class _Subscription(Generic[M]):
     """What both subscribers share: decoding on Zenoh's thread into a bounded buffer, exact
-    repeats (a takeover's at-least-once) dropped, invalid payloads counted and logged."""
+    repeats (a takeover's at-least-once) and a fenced holder's messages dropped, invalid
+    payloads counted and logged."""
 
     def __init__(
         self,
@@ -216,9 +225,7 @@ class _Subscription(Generic[M]):
         self.invalid = 0  # payloads on a tracks key that did not decode
         self._invalid_seen = 0  # the same, counted as each arrives (for the log line)
         self._invalid_lock = threading.Lock()
-        self.duplicates = 0  # frames delivered before, not delivered again
-        self._recent: dict[str, deque[tuple[int, int]]] = {}  # key -> last (seq, stamp)
-        self._recent_lock = threading.Lock()
+        self._filter = StreamFilter()
         self.invalid_reasons: dict[str, int] = {}  # the same, by ErrorReason value
         self.last_rejection: Rejection | None = None
         self._on_invalid = on_invalid
@@ -255,17 +262,8 @@ class _Subscription(Generic[M]):
         if isinstance(msg, Rejection):
             self._invalid(key, msg)
             return
-        # Samples of two members come on two links' threads: check and record as one step.
-        with self._recent_lock:
-            recent = self._recent.get(key)
-            if recent is None:
-                if len(self._recent) >= MAX_KEYS:
-                    self._recent.clear()
-                recent = self._recent[key] = deque(maxlen=RECENT_FRAMES)
-            if (msg.seq, msg.stamp_ns) in recent:
-                self.duplicates += 1
-                return
-            recent.append((msg.seq, msg.stamp_ns))
+        if self._filter.admit(key, msg.seq, msg.stamp_ns, msg.epoch) is not Verdict.DELIVER:
+            return
         if self._callback is None:
             self._mailbox.put(msg)
             return
@@ -306,6 +304,16 @@ class _Subscription(Generic[M]):
             self.invalid += 1
 
     # ----------------------------------------------------------------- consuming
+    @property
+    def duplicates(self) -> int:
+        """Frames delivered before (same key, seq and stamp), not delivered again."""
+        return self._filter.repeats
+
+    @property
+    def stale(self) -> int:
+        """Frames of a fenced holder (an epoch below its stream's highest), not delivered."""
+        return self._filter.stale
+
     @property
     def received(self) -> int:
         return self._mailbox.put_count

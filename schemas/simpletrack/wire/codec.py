@@ -43,6 +43,7 @@ from simpletrack.wire.fields import Invalid
 from simpletrack.wire.messages import (
     BOX_COLUMNS,
     DETECTION_FRAMES,
+    INT64_MAX,
     MESSAGE_TYPES,
     SPECS,
     TRACK_FRAMES,
@@ -57,6 +58,7 @@ from simpletrack.wire.reasons import (
     DETECTION_SCHEMA_VERSION,
     DETECTION_SCHEMA_VERSIONS,
     SCHEMA_VERSION,
+    TRACK_EPOCH_SCHEMA_VERSION,
     TRACK_SCHEMA_VERSION,
     TRACK_SCHEMA_VERSIONS,
     ErrorReason,
@@ -234,6 +236,8 @@ def decode_track_frame(
     payload: bytes,
     limits: DecodeLimits = DEFAULT_LIMITS,
 ) -> tuple[TrackFrame, TrackArrays] | Rejection:
+    """Decode and validate a ``TrackFrame`` (version 1, 2 or 3); the frame's ``epoch`` is
+    None unless a version-3 frame carries one."""
     obj: dict[str, Any] = {}
     try:
         obj = unpack(payload, limits)
@@ -351,16 +355,22 @@ def encode_track_frame(
     published_ns: int,
     tracks: TrackArrays,
     schema_version: int | None = None,
+    epoch: int | None = None,
 ) -> bytes:
-    """A ``TrackFrame`` of the given version (1 leaves out version 2's columns, for fleets
-    with readers of version 1); None: version 2 when ``tracks`` has its ages in seconds,
-    else 1 (what a caller of before version 2 gets). ValueError for a bad version, a column
-    of the wrong shape, or a version-2 frame without ages in seconds."""
+    """A ``TrackFrame`` of the given version. An earlier version leaves out what later ones
+    added, for fleets with readers of that version: 1 version 2's columns, 1 and 2 the
+    ``epoch``. None: the newest version the arguments fill (3 with ages in seconds and an
+    epoch, 2 with ages only, else 1: what a caller of before each version gets). ``epoch``
+    None leaves the key out. ValueError for a bad version or epoch, a column of the wrong
+    shape, or a frame of version 2 or 3 without ages in seconds."""
+    check_epoch(epoch)
     if schema_version is None:
         has_ages = tracks.age_s is not None and tracks.time_since_update_s is not None
-        schema_version = TRACK_SCHEMA_VERSION if has_ages else 1
+        schema_version = 1
+        if has_ages:
+            schema_version = TRACK_SCHEMA_VERSION if epoch is None else TRACK_EPOCH_SCHEMA_VERSION
     if schema_version not in TRACK_COLUMNS_OF:
-        raise ValueError(f"TrackFrame schema_version {schema_version!r} is not one of 1, 2")
+        raise ValueError(f"TrackFrame schema_version {schema_version!r} is not one of 1, 2, 3")
     columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
     for spec in TRACK_COLUMNS_OF[schema_version]:
         values = getattr(tracks, spec.name)
@@ -369,19 +379,27 @@ def encode_track_frame(
                 raise ValueError(f"a version {schema_version} TrackFrame needs {spec.name}")
             continue
         columns[spec.name] = to_column(values, spec)
-    return pack(
-        {
-            "schema_version": schema_version,
-            "vehicle": vehicle,
-            "sensor": sensor,
-            "seq": seq,
-            "stamp_ns": stamp_ns,
-            "frame_id": frame_id,
-            "pose": pose,
-            "key_frame": key_frame,
-            "instance": instance,
-            "received_ns": received_ns,
-            "published_ns": published_ns,
-            "tracks": columns,
-        }
-    )
+    msg: dict[str, Any] = {
+        "schema_version": schema_version,
+        "vehicle": vehicle,
+        "sensor": sensor,
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "frame_id": frame_id,
+        "pose": pose,
+        "key_frame": key_frame,
+        "instance": instance,
+        "received_ns": received_ns,
+        "published_ns": published_ns,
+        "tracks": columns,
+    }
+    if epoch is not None and schema_version >= TRACK_EPOCH_SCHEMA_VERSION:
+        msg["epoch"] = epoch
+    return pack(msg)
+
+
+def check_epoch(epoch: int | None) -> None:
+    """ValueError unless ``epoch`` is None or what the wire's ``epoch`` holds: an int in
+    [0, 2**63 - 1] (a bool is no epoch)."""
+    if epoch is not None and (type(epoch) is not int or not 0 <= epoch <= INT64_MAX):
+        raise ValueError(f"epoch must be an int in [0, 2**63 - 1], got {epoch!r}")

@@ -88,8 +88,12 @@ TRACK_COLUMNS_V2_ADDED: tuple[ColumnSpec, ...] = (
     ColumnSpec("time_since_update_s", "<f8", 1, finite=True),
 )
 TRACK_COLUMNS: tuple[ColumnSpec, ...] = TRACK_COLUMNS_V1 + TRACK_COLUMNS_V2_ADDED
-# The columns of each TrackFrame schema version.
-TRACK_COLUMNS_OF: dict[int, tuple[ColumnSpec, ...]] = {1: TRACK_COLUMNS_V1, 2: TRACK_COLUMNS}
+# The columns of each TrackFrame schema version (3 adds the epoch, which is not a column).
+TRACK_COLUMNS_OF: dict[int, tuple[ColumnSpec, ...]] = {
+    1: TRACK_COLUMNS_V1,
+    2: TRACK_COLUMNS,
+    3: TRACK_COLUMNS,
+}
 COVARIANCE_UPPER = np.triu_indices(6)  # (row, col) of each of the 21 values, in order
 # A vehicle's fused tracks (VehicleTrackFrame): a TrackFrame version 2's columns and two more.
 # sensor_stamp_ns is (count, len(sensors)): -1 where that sensor never updated the track.

@@ -133,7 +133,7 @@ def _track_arrays() -> TrackArrays:
     )
 
 
-def _tracks(schema_version: int = 1, covariance: bool = True) -> bytes:
+def _tracks(schema_version: int = 1, covariance: bool = True, epoch: int | None = None) -> bytes:
     tracks = _track_arrays()
     if schema_version >= 2:
         # Powers of two (exact in float32): a confident car, a young pedestrian; the
@@ -158,6 +158,7 @@ def _tracks(schema_version: int = 1, covariance: bool = True) -> bytes:
         published_ns=1_700_000_000_135_000_000,
         tracks=tracks,
         schema_version=schema_version,
+        epoch=epoch,
     )
 
 
@@ -165,7 +166,7 @@ _STAMP_NS: int = _HEADER["stamp_ns"]
 _SENSORS = ["lidar_top", "radar_rear"]
 
 
-def _vehicle_tracks(empty: bool = False) -> bytes:
+def _vehicle_tracks(empty: bool = False, epoch: int | None = None) -> bytes:
     """A vehicle fusing a lidar and a rear radar, after a lidar frame: the car was last
     updated by both (the radar 50 ms earlier), the young pedestrian by the lidar alone. Empty:
     three sensors in world coordinates, no tracks yet."""
@@ -200,21 +201,26 @@ def _vehicle_tracks(empty: bool = False) -> bytes:
         sensors=sensors,
         sensor_state=states,
         tracks=tracks,
+        epoch=epoch,
     )
 
 
-def _raw_vehicle_tracks(mutate: Callable[[dict[str, Any]], None]) -> bytes:
+def _raw_vehicle_tracks(
+    mutate: Callable[[dict[str, Any]], None], epoch: int | None = None
+) -> bytes:
     import msgpack
 
-    obj: dict[str, Any] = msgpack.unpackb(_vehicle_tracks(), raw=False)
+    obj: dict[str, Any] = msgpack.unpackb(_vehicle_tracks(epoch=epoch), raw=False)
     mutate(obj)
     return pack(obj)
 
 
-def _raw_tracks(schema_version: int, mutate: Callable[[dict[str, Any]], None]) -> bytes:
+def _raw_tracks(
+    schema_version: int, mutate: Callable[[dict[str, Any]], None], epoch: int | None = None
+) -> bytes:
     import msgpack
 
-    obj: dict[str, Any] = msgpack.unpackb(_tracks(schema_version), raw=False)
+    obj: dict[str, Any] = msgpack.unpackb(_tracks(schema_version, epoch=epoch), raw=False)
     mutate(obj)
     return pack(obj)
 
@@ -281,9 +287,21 @@ VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
         "TrackFrame",
         lambda: _raw_tracks(2, _set("tracks.age_s", _DELETE)),
     ),
+    # Version 4: 3 (this vector's number until TrackFrame version 3) is read now.
     "invalid_tracks_wrong_version": (
         "TrackFrame",
-        lambda: _raw_tracks(2, _set("schema_version", 3)),
+        lambda: _raw_tracks(2, _set("schema_version", 4)),
+    ),
+    # Version 3: a custody epoch (schemas/README.md, "Custody epoch (fencing)").
+    "tracks_epoch": ("TrackFrame", lambda: _tracks(3, epoch=3)),
+    # An epoch in a frame that says version 2: refused as a version-2 reader would.
+    "invalid_tracks_v2_epoch": (
+        "TrackFrame",
+        lambda: _raw_tracks(3, _set("schema_version", 2), epoch=3),
+    ),
+    "invalid_tracks_epoch_out_of_range": (
+        "TrackFrame",
+        lambda: _raw_tracks(3, _set("epoch", 2**63), epoch=3),
     ),
     "error_unknown_class": ("FrameError", _error),
     "error_sensor_flagged": (
@@ -318,9 +336,17 @@ VECTORS: dict[str, tuple[str, Callable[[], bytes]]] = {
         "VehicleTrackFrame",
         lambda: _raw_vehicle_tracks(_set("sensor_state", ["ok"])),
     ),
+    # Version 3: 2 (this vector's number until VehicleTrackFrame version 2) is read now.
     "invalid_vehicle_tracks_wrong_version": (
         "VehicleTrackFrame",
-        lambda: _raw_vehicle_tracks(_set("schema_version", 2)),
+        lambda: _raw_vehicle_tracks(_set("schema_version", 3)),
+    ),
+    # Version 2: a custody epoch, over 2**32 (a reader's integer must be 64 bits wide).
+    "vehicle_tracks_epoch": ("VehicleTrackFrame", lambda: _vehicle_tracks(epoch=2**32 + 1)),
+    # An epoch in a frame that says version 1: refused as a version-1 reader would.
+    "invalid_vehicle_tracks_v1_epoch": (
+        "VehicleTrackFrame",
+        lambda: _raw_vehicle_tracks(_set("schema_version", 1), epoch=2**32 + 1),
     ),
     # Version 3: 2 (this vector's number until DetectionFrame version 2) is read now.
     "invalid_wrong_version": ("DetectionFrame", lambda: _raw(_set("schema_version", 3))),

@@ -35,3 +35,20 @@ def peek_header(payload: bytes) -> tuple[int | None, int | None]:
     if not isinstance(obj, dict):
         return None, None
     return _int64(obj, "seq"), _int64(obj, "stamp_ns")
+
+
+def peek_custody(payload: bytes) -> tuple[str | None, int | None]:
+    """(instance, epoch) of a tracks message (TrackFrame or VehicleTrackFrame) without
+    validating it: who published it, in which custody epoch (None: not there or unreadable).
+    A member reads it from the tracks of the streams it holds, published by another one:
+    a higher epoch there means its own state is stale (docs/SCALE.md, "Fencing")."""
+    if len(payload) > MAX_BYTES:
+        return None, None
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception:
+        return None, None
+    if not isinstance(obj, dict):
+        return None, None
+    instance = obj.get("instance")
+    return (instance if isinstance(instance, str) else None), _int64(obj, "epoch")

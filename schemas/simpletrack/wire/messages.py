@@ -36,7 +36,7 @@ from simpletrack.wire.reasons import (
     DETECTION_SCHEMA_VERSION,
     SCHEMA_VERSION,
     STATUS_SCHEMA_VERSION,
-    TRACK_SCHEMA_VERSION,
+    TRACK_EPOCH_SCHEMA_VERSION,
     VEHICLE_TRACK_SCHEMA_VERSION,
     ErrorReason,
     SensorCondition,
@@ -135,6 +135,9 @@ class TrackFrame:
     received_ns: int
     published_ns: int
     tracks: TrackColumns
+    # Version 3: the stream's custody epoch (schemas/README.md, "Custody epoch"); absent
+    # from an earlier version and from a version-3 frame that carries none.
+    epoch: int | None = dataclass_field(default=None, metadata=OMIT_NONE)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -166,6 +169,8 @@ class VehicleTrackFrame:
     sensors: list[str]
     sensor_state: list[SensorCondition]
     tracks: VehicleTrackColumns
+    # Version 2: the stream's custody epoch, as a TrackFrame's (absent from version 1).
+    epoch: int | None = dataclass_field(default=None, metadata=OMIT_NONE)
 
     def pose_matrix(self) -> npt.NDArray[np.float64] | None:
         return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
@@ -275,6 +280,7 @@ class SensorSnapshot:
     config_digest: str
     tracker: bytes | None = None
     written_ns: int
+    epoch: int | None = None
 
 
 # --- the field tables (order = the order of checks, as in schemas/README.md) ---------------
@@ -361,7 +367,13 @@ DETECTION_FRAME = _detection_frame(
 DETECTION_FRAMES: dict[int, MapSpec[DetectionFrame]] = {1: DETECTION_FRAME_V1, 2: DETECTION_FRAME}
 
 
-def _track_frame(name: str, version: int, columns: MapSpec[TrackColumns]) -> MapSpec[TrackFrame]:
+# The custody epoch of a tracks stream (TrackFrame version 3, VehicleTrackFrame version 2).
+_EPOCH = Field("epoch", nullable(_int64), None)
+
+
+def _track_frame(
+    name: str, version: int, columns: MapSpec[TrackColumns], added: tuple[Field, ...] = ()
+) -> MapSpec[TrackFrame]:
     return MapSpec(
         name,
         TrackFrame,
@@ -374,16 +386,24 @@ def _track_frame(name: str, version: int, columns: MapSpec[TrackColumns]) -> Map
             Field("received_ns", _int64),
             Field("published_ns", _int64),
             Field("tracks", columns),
+            *added,
         ],
     )
 
 
-# Named as the pydantic models are (models.TrackFrameV1), whose messages these repeat.
+# Named as the pydantic models are (models.TrackFrameV1, TrackFrameV2), whose messages these
+# repeat.
 TRACK_FRAME_V1 = _track_frame("TrackFrameV1", 1, TRACK_COLUMNS_V1)
-TRACK_FRAME = _track_frame("TrackFrame", TRACK_SCHEMA_VERSION, TRACK_COLUMNS)
+TRACK_FRAME_V2 = _track_frame("TrackFrameV2", 2, TRACK_COLUMNS)
+TRACK_FRAME = _track_frame("TrackFrame", TRACK_EPOCH_SCHEMA_VERSION, TRACK_COLUMNS, (_EPOCH,))
 # Each TrackFrame version a decoder reads, with its fields (a version-1 frame holding a
-# version-2 column is an extra_field, as it is to a version-1 reader).
-TRACK_FRAMES: dict[int, MapSpec[TrackFrame]] = {1: TRACK_FRAME_V1, 2: TRACK_FRAME}
+# version-2 column, or a version-2 one holding an epoch, is an extra_field, as it is to a
+# reader of that version).
+TRACK_FRAMES: dict[int, MapSpec[TrackFrame]] = {
+    1: TRACK_FRAME_V1,
+    2: TRACK_FRAME_V2,
+    3: TRACK_FRAME,
+}
 VEHICLE_TRACK_COLUMNS = MapSpec(
     "VehicleTrackColumns",
     VehicleTrackColumns,
@@ -393,28 +413,44 @@ VEHICLE_TRACK_COLUMNS = MapSpec(
         *_track_columns(columns.VEHICLE_TRACK_COLUMNS),
     ],
 )
+
+
 # Rules across fields (sensors unique, one state per sensor, sensor among them) and the
 # columns' contents are the codec's (codec.decode_vehicle_track_frame).
-VEHICLE_TRACK_FRAME = MapSpec(
-    "VehicleTrackFrame",
-    VehicleTrackFrame,
-    [
-        Field("schema_version", literal(VEHICLE_TRACK_SCHEMA_VERSION)),
-        Field("vehicle", _name),
-        Field("seq", _int64),
-        Field("stamp_ns", _int64),
-        Field("sensor", _name),
-        Field("sensor_seq", _int64),
-        Field("frame_id", string(min_length=1, max_length=128)),
-        Field("pose", _pose, None),
-        Field("instance", _name),
-        Field("received_ns", _int64),
-        Field("published_ns", _int64),
-        Field("sensors", array(_name, min_length=1, max_length=MAX_FUSED_SENSORS)),
-        Field("sensor_state", array(one_of(SensorCondition), max_length=MAX_FUSED_SENSORS)),
-        Field("tracks", VEHICLE_TRACK_COLUMNS),
-    ],
+def _vehicle_track_frame(
+    name: str, version: int, added: tuple[Field, ...] = ()
+) -> MapSpec[VehicleTrackFrame]:
+    return MapSpec(
+        name,
+        VehicleTrackFrame,
+        [
+            Field("schema_version", literal(version)),
+            Field("vehicle", _name),
+            Field("seq", _int64),
+            Field("stamp_ns", _int64),
+            Field("sensor", _name),
+            Field("sensor_seq", _int64),
+            Field("frame_id", string(min_length=1, max_length=128)),
+            Field("pose", _pose, None),
+            Field("instance", _name),
+            Field("received_ns", _int64),
+            Field("published_ns", _int64),
+            Field("sensors", array(_name, min_length=1, max_length=MAX_FUSED_SENSORS)),
+            Field("sensor_state", array(one_of(SensorCondition), max_length=MAX_FUSED_SENSORS)),
+            Field("tracks", VEHICLE_TRACK_COLUMNS),
+            *added,
+        ],
+    )
+
+
+VEHICLE_TRACK_FRAME_V1 = _vehicle_track_frame("VehicleTrackFrameV1", 1)
+VEHICLE_TRACK_FRAME = _vehicle_track_frame(
+    "VehicleTrackFrame", VEHICLE_TRACK_SCHEMA_VERSION, (_EPOCH,)
 )
+VEHICLE_TRACK_FRAMES: dict[int, MapSpec[VehicleTrackFrame]] = {
+    1: VEHICLE_TRACK_FRAME_V1,
+    2: VEHICLE_TRACK_FRAME,
+}
 FRAME_ERROR = MapSpec(
     "FrameError",
     FrameError,
@@ -529,6 +565,7 @@ SENSOR_SNAPSHOT = MapSpec(
         Field("config_digest", string()),
         Field("tracker", nullable(binary), None),
         Field("written_ns", _int64),
+        Field("epoch", nullable(_int64), None),
     ],
 )
 
@@ -571,8 +608,10 @@ SPECS: dict[str, MapSpec[Any]] = {
         DETECTION_FRAME,
         DETECTION_FRAME_V1,
         TRACK_FRAME,
+        TRACK_FRAME_V2,
         TRACK_FRAME_V1,
         VEHICLE_TRACK_FRAME,
+        VEHICLE_TRACK_FRAME_V1,
         FRAME_ERROR,
         SENSOR_STATUS,
         FUSED_SENSOR_STATUS,
@@ -586,6 +625,7 @@ SPECS: dict[str, MapSpec[Any]] = {
 VERSIONS: dict[str, dict[int, MapSpec[Any]]] = {
     "DetectionFrame": dict(DETECTION_FRAMES),
     "TrackFrame": dict(TRACK_FRAMES),
+    "VehicleTrackFrame": dict(VEHICLE_TRACK_FRAMES),
     "ServiceStatus": {1: SERVICE_STATUS_V1, 2: SERVICE_STATUS},
 }
 

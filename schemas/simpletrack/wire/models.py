@@ -221,7 +221,7 @@ class TrackFrameV1(_Header):
     tracks: TrackColumnsV1
 
 
-class TrackFrame(TrackFrameV1):
+class TrackFrameV2(TrackFrameV1):
     """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``
     (version 2: covariance and ages in seconds).
 
@@ -231,6 +231,36 @@ class TrackFrame(TrackFrameV1):
         description="2 for this layout (1: TrackFrameV1)"
     )
     tracks: TrackColumns
+
+
+# Both tracks messages' custody epoch (schemas/README.md, "Custody epoch (fencing)").
+_EPOCH_DOC = (
+    "custody epoch of the stream: higher each time another holder takes it over; a message "
+    "with an epoch below the highest seen on its stream comes from a fenced holder: drop it"
+)
+
+
+def _without_nil_epoch(out: dict[str, Any]) -> dict[str, Any]:
+    # Absent rather than nil, as the encoders write it (simpletrack.wire.messages.OMIT_NONE).
+    if out.get("epoch", 0) is None:
+        del out["epoch"]
+    return out
+
+
+class TrackFrame(TrackFrameV2):
+    """The tracks after one detection frame: ``<prefix>/<vehicle>/<sensor>/tracks``
+    (version 3: version 2 and the optional custody epoch).
+
+    ``seq`` and ``stamp_ns`` echo the detection frame's."""
+
+    schema_version: Literal[3] = Field(  # type: ignore[assignment]  # v2 is a separate model
+        description="3 for this layout (2: TrackFrameV2, 1: TrackFrameV1)"
+    )
+    epoch: Int64 | None = Field(default=None, description=_EPOCH_DOC)
+
+    @model_serializer(mode="wrap")
+    def _omit_absent_epoch(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        return _without_nil_epoch(handler(self))
 
 
 class VehicleTrackColumns(TrackColumns):
@@ -246,10 +276,10 @@ class VehicleTrackColumns(TrackColumns):
     )
 
 
-class VehicleTrackFrame(WireModel):
+class VehicleTrackFrameV1(WireModel):
     """A vehicle's fused tracks: ``<prefix>/<vehicle>/@vehicle/tracks``, one tracker fed by
-    the vehicle's sensors. (vehicle, seq, stamp_ns) identify a message: a repeat carries the
-    same three."""
+    the vehicle's sensors (version 1, without the epoch). (vehicle, seq, stamp_ns) identify
+    a message: a repeat carries the same three."""
 
     schema_version: Literal[1] = Field(description="1 for this layout")
     vehicle: Name
@@ -283,6 +313,20 @@ class VehicleTrackFrame(WireModel):
 
     def pose_matrix(self) -> npt.NDArray[np.float64] | None:
         return None if self.pose is None else np.asarray(self.pose, np.float64).reshape(4, 4)
+
+
+class VehicleTrackFrame(VehicleTrackFrameV1):
+    """A vehicle's fused tracks: ``<prefix>/<vehicle>/@vehicle/tracks`` (version 2: version 1
+    and the optional custody epoch)."""
+
+    schema_version: Literal[2] = Field(  # type: ignore[assignment]  # v1 is a separate model
+        description="2 for this layout (1: VehicleTrackFrameV1)"
+    )
+    epoch: Int64 | None = Field(default=None, description=_EPOCH_DOC)
+
+    @model_serializer(mode="wrap")
+    def _omit_absent_epoch(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        return _without_nil_epoch(handler(self))
 
 
 class FrameError(WireModel):
@@ -433,14 +477,20 @@ class SensorSnapshot(WireModel):
     config_digest: str = Field(description="sha256 of the tracker configuration")
     tracker: bytes | None = Field(default=None, description="opaque Tracker.to_bytes() blob")
     written_ns: Int64
+    epoch: Int64 | None = Field(
+        default=None,
+        description="the stream's custody epoch when written (nil: a service of before epochs)",
+    )
 
 
 MESSAGES: tuple[type[WireModel], ...] = (
     DetectionFrame,
     DetectionFrameV1,
     TrackFrame,
+    TrackFrameV2,
     TrackFrameV1,
     VehicleTrackFrame,
+    VehicleTrackFrameV1,
     FrameError,
     ServiceStatus,
     ServiceStatusV1,

@@ -6,10 +6,13 @@ from enum import IntEnum, StrEnum
 from typing import Final
 
 SCHEMA_VERSION: Final = 1
-# TrackFrame is at version 2 (covariance, ages in seconds); decoders read 1 and 2,
-# and the service sends either (its setting tracks_schema_version; schemas/README.md).
+# TrackFrame version 2 added covariance and ages in seconds, version 3 the custody epoch.
+# Decoders read 1 to 3; a service sends the one its setting tracks_schema_version names,
+# by default TRACK_SCHEMA_VERSION: until every reader decodes 3, a version a reader of
+# before the epoch takes (schemas/README.md, Versioning).
 TRACK_SCHEMA_VERSION: Final = 2
-TRACK_SCHEMA_VERSIONS: Final = (1, 2)
+TRACK_EPOCH_SCHEMA_VERSION: Final = 3
+TRACK_SCHEMA_VERSIONS: Final = (1, 2, 3)
 # DetectionFrame version 2 adds the optional extrinsic. Encoders write 2 only when they send
 # one, so a frame without it is byte for byte what a version-1 publisher sent.
 DETECTION_SCHEMA_VERSION: Final = 2
@@ -17,8 +20,10 @@ DETECTION_SCHEMA_VERSIONS: Final = (1, 2)
 # ServiceStatus version 2 adds the fused vehicles; decoders read 1 and 2.
 STATUS_SCHEMA_VERSION: Final = 2
 STATUS_SCHEMA_VERSIONS: Final = (1, 2)
-# VehicleTrackFrame is a message of its own, at its first version.
-VEHICLE_TRACK_SCHEMA_VERSION: Final = 1
+# VehicleTrackFrame is a message of its own; its version 2 adds the custody epoch. Encoders
+# write 2 only when they send one, so a frame without it is byte for byte a version-1 frame.
+VEHICLE_TRACK_SCHEMA_VERSION: Final = 2
+VEHICLE_TRACK_SCHEMA_VERSIONS: Final = (1, 2)
 
 
 class ErrorReason(StrEnum):

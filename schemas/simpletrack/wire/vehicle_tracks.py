@@ -1,7 +1,7 @@
 """``VehicleTrackFrame``: a vehicle's fused tracks (``<prefix>/<vehicle>/@vehicle/tracks``),
 encoded and decoded. Decoding never raises: the frame and its columns, or a ``Rejection``.
 
-Order of checks (schemas/README.md, "VehicleTrackFrame"): the payload, the version (1), the
+Order of checks (schemas/README.md, "VehicleTrackFrame"): the payload, the version (1 or 2), the
 fields in table order and unknown keys; then across fields: ``sensors`` unique,
 ``sensor_state`` one per sensor, ``sensor`` one of ``sensors``; then the row cap, each
 column's byte length (``sensor_stamp_ns``: count x len(sensors) values) and finiteness in
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.wire.codec import pack
+from simpletrack.wire.codec import check_epoch, pack
 from simpletrack.wire.columns import VEHICLE_TRACK_COLUMNS, TrackArrays, to_column
 from simpletrack.wire.decoding import (
     DEFAULT_LIMITS,
@@ -31,11 +31,15 @@ from simpletrack.wire.decoding import (
     unpack,
     validate,
 )
-from simpletrack.wire.messages import VEHICLE_TRACK_FRAME, VehicleTrackFrame
-from simpletrack.wire.reasons import VEHICLE_TRACK_SCHEMA_VERSION, ErrorReason, SensorCondition
+from simpletrack.wire.messages import VEHICLE_TRACK_FRAMES, VehicleTrackFrame
+from simpletrack.wire.reasons import (
+    VEHICLE_TRACK_SCHEMA_VERSION,
+    VEHICLE_TRACK_SCHEMA_VERSIONS,
+    ErrorReason,
+    SensorCondition,
+)
 
 _PLAN = plan(VEHICLE_TRACK_COLUMNS, "tracks")
-_VERSIONS = (VEHICLE_TRACK_SCHEMA_VERSION,)
 # No sensor updated the track (a sensor_stamp_ns value).
 NEVER = -1
 
@@ -73,13 +77,14 @@ def decode_vehicle_track_frame(
     payload: bytes,
     limits: DecodeLimits = DEFAULT_LIMITS,
 ) -> tuple[VehicleTrackFrame, TrackArrays] | Rejection:
-    """Decode and validate a ``VehicleTrackFrame``. The arrays hold every TrackFrame
-    version 2 column, ``existence`` (N,) and ``sensor_stamp_ns`` (N, len(sensors))."""
+    """Decode and validate a ``VehicleTrackFrame`` (version 1, or 2: its ``epoch`` is None
+    unless a version-2 frame carries one). The arrays hold every TrackFrame version 2
+    column, ``existence`` (N,) and ``sensor_stamp_ns`` (N, len(sensors))."""
     obj: dict[str, Any] = {}
     try:
         obj = unpack(payload, limits)
-        check_version(obj, _VERSIONS)
-        frame = validate(VEHICLE_TRACK_FRAME, obj)
+        version = check_version(obj, VEHICLE_TRACK_SCHEMA_VERSIONS)
+        frame = validate(VEHICLE_TRACK_FRAMES[version], obj)
         _check_sensors(frame.sensor, frame.sensors, frame.sensor_state)
         cols = read_columns(frame.tracks, _PLAN, "tracks", limits.max_boxes, len(frame.sensors))
         _check_values(cols["existence"], cols["sensor_stamp_ns"])
@@ -105,11 +110,15 @@ def encode_vehicle_track_frame(
     sensors: Sequence[str],
     sensor_state: Sequence[SensorCondition | str],
     tracks: TrackArrays,
+    epoch: int | None = None,
 ) -> bytes:
     """A ``VehicleTrackFrame``; ``tracks`` must hold ``age_s``, ``time_since_update_s``,
     ``existence`` and ``sensor_stamp_ns`` (N, len(sensors)) (``covariance`` is optional, as
-    in a TrackFrame). ValueError for a missing or misshapen column, an unknown sensor state,
-    repeated sensors, states not one per sensor, or ``sensor`` not among ``sensors``."""
+    in a TrackFrame). Version 2 with an ``epoch``; without one version 1, byte for byte what
+    an encoder of before the epoch wrote. ValueError for a missing or misshapen column, an
+    unknown sensor state, repeated sensors, states not one per sensor, ``sensor`` not among
+    ``sensors``, or an epoch outside [0, 2**63 - 1]."""
+    check_epoch(epoch)
     names = [str(s) for s in sensors]
     states = [SensorCondition(s).value for s in sensor_state]
     try:
@@ -124,21 +133,22 @@ def encode_vehicle_track_frame(
                 raise ValueError(f"a VehicleTrackFrame needs {spec.name}")
             continue
         columns[spec.name] = to_column(values, spec, len(names))
-    return pack(
-        {
-            "schema_version": VEHICLE_TRACK_SCHEMA_VERSION,
-            "vehicle": vehicle,
-            "seq": seq,
-            "stamp_ns": stamp_ns,
-            "sensor": sensor,
-            "sensor_seq": sensor_seq,
-            "frame_id": frame_id,
-            "pose": pose,
-            "instance": instance,
-            "received_ns": received_ns,
-            "published_ns": published_ns,
-            "sensors": names,
-            "sensor_state": states,
-            "tracks": columns,
-        }
-    )
+    msg: dict[str, Any] = {
+        "schema_version": 1 if epoch is None else VEHICLE_TRACK_SCHEMA_VERSION,
+        "vehicle": vehicle,
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "sensor": sensor,
+        "sensor_seq": sensor_seq,
+        "frame_id": frame_id,
+        "pose": pose,
+        "instance": instance,
+        "received_ns": received_ns,
+        "published_ns": published_ns,
+        "sensors": names,
+        "sensor_state": states,
+        "tracks": columns,
+    }
+    if epoch is not None:
+        msg["epoch"] = epoch
+    return pack(msg)

@@ -1,6 +1,8 @@
 // SimpleTrack wire codec (schemas/README.md): header-only, C++17, on msgpack-c++ (4.x or
-// newer). DetectionFrame versions 1 and 2 (extrinsic), TrackFrame 1 and 2, FrameError, and a
-// vehicle's fused tracks (VehicleTrackFrame, wire/vehicle_tracks.hpp).
+// newer). DetectionFrame versions 1 and 2 (extrinsic), TrackFrame 1 to 3 (3: the custody
+// epoch), FrameError, and a vehicle's fused tracks (VehicleTrackFrame 1 and 2,
+// wire/vehicle_tracks.hpp); simpletrack::EpochFilter drops what a fenced holder of a tracks
+// stream sends (wire/epoch_filter.hpp).
 //
 //   #include <simpletrack/wire.hpp>
 //   namespace wire = simpletrack::wire;
@@ -13,5 +15,6 @@
 #include "simpletrack/wire/bytes.hpp"
 #include "simpletrack/wire/decode.hpp"
 #include "simpletrack/wire/encode.hpp"
+#include "simpletrack/wire/epoch_filter.hpp"
 #include "simpletrack/wire/messages.hpp"
 #include "simpletrack/wire/vehicle_tracks.hpp"

@@ -145,7 +145,37 @@ fn fused() -> VehicleTrackFrame {
             existence: Some(vec![1.0, 0.25]),
             sensor_stamp_ns: Some(vec![vec![2_000, 1_950], vec![2_000, NEVER_UPDATED]]),
         },
+        epoch: None,
     }
+}
+
+#[test]
+fn a_vehicle_frame_with_an_epoch_is_version_2_and_one_without_version_1() {
+    let mut f = fused();
+    f.epoch = Some((1 << 32) + 1);
+    let payload = encode_vehicle_track_frame(&f).unwrap();
+    let back = decode_vehicle_track_frame(&payload, &DecodeLimits::default()).unwrap();
+    assert_eq!(
+        (back.schema_version(), back.epoch),
+        (2, Some((1 << 32) + 1))
+    );
+    assert_eq!(back, f);
+    let plain = encode_vehicle_track_frame(&fused()).unwrap();
+    assert_eq!(plain[16], 1, "schema_version 1 without an epoch");
+    // An epoch in a frame that says version 1 is refused, as a version-1 reader would.
+    let mut v = rmpv::decode::read_value(&mut &payload[..]).unwrap();
+    set(&mut v, "schema_version", 1.into());
+    let r = decode_vehicle_track_frame(&packed(&v), &DecodeLimits::default()).unwrap_err();
+    assert_eq!(
+        (r.reason, r.field.as_deref()),
+        (ErrorReason::ExtraField, Some("epoch"))
+    );
+    f.epoch = Some(1 << 63);
+    let r = encode_vehicle_track_frame(&f).unwrap_err();
+    assert_eq!(
+        (r.reason, r.field.as_deref()),
+        (ErrorReason::InvalidValue, Some("epoch"))
+    );
 }
 
 #[test]
@@ -230,7 +260,7 @@ fn a_vehicle_frame_breaking_its_own_rules_is_refused_with_its_field() {
         (ErrorReason::InvalidValue, Some("sensor".into()))
     );
     assert_eq!(
-        refused_vehicle(|v| set(v, "schema_version", 2.into())),
+        refused_vehicle(|v| set(v, "schema_version", 3.into())),
         (ErrorReason::WrongVersion, Some("schema_version".into()))
     );
     assert_eq!(

@@ -1,8 +1,9 @@
 //! The wire format (schemas/README.md): typed messages, their msgpack encoders (byte for byte
 //! the reference encoder's output) and validating decoders (the reference decoder's verdicts:
 //! the same reason and field for the first failing check). Schema version 1, except
-//! `DetectionFrame` (1 and 2: the extrinsic), `TrackFrame` (1 and 2) and `ServiceStatus`
-//! (1 and 2: the fused vehicles); `VehicleTrackFrame` is a vehicle's fused tracks.
+//! `DetectionFrame` (1 and 2: the extrinsic), `TrackFrame` (1 to 3: 3 the custody epoch),
+//! `ServiceStatus` (1 and 2: the fused vehicles) and `VehicleTrackFrame` (a vehicle's fused
+//! tracks; 1 and 2: the custody epoch).
 
 mod columns;
 pub(crate) mod detection;
@@ -32,7 +33,8 @@ pub use header::{
 pub use keys::{Keys, DEFAULT_PREFIX, VEHICLE_STREAM};
 pub use reasons::{
     ErrorReason, SensorCondition, TrackState, DETECTION_SCHEMA_VERSION, SCHEMA_VERSION,
-    STATUS_SCHEMA_VERSION, TRACK_SCHEMA_VERSION, VEHICLE_TRACK_SCHEMA_VERSION,
+    STATUS_SCHEMA_VERSION, TRACK_EPOCH_SCHEMA_VERSION, TRACK_SCHEMA_VERSION,
+    VEHICLE_TRACK_SCHEMA_VERSION,
 };
 pub use rejection::Rejection;
 pub use status::{

@@ -4,15 +4,19 @@ use std::fmt;
 
 /// The schema version this crate reads and writes (`schema_version`).
 pub const SCHEMA_VERSION: u64 = 1;
-/// `TrackFrame` is at version 2 (covariance, ages in seconds); the decoder reads 1 and 2.
+/// `TrackFrame` version 2 added covariance and ages in seconds; what a service sends unless
+/// told otherwise (its `tracks_schema_version`).
 pub const TRACK_SCHEMA_VERSION: u64 = 2;
+/// `TrackFrame` version 3 adds the optional custody `epoch`; the decoder reads 1 to 3.
+pub const TRACK_EPOCH_SCHEMA_VERSION: u64 = 3;
 /// `DetectionFrame` version 2 adds the optional `extrinsic`; the decoder reads 1 and 2, the
 /// encoder writes 2 only for a frame with an extrinsic.
 pub const DETECTION_SCHEMA_VERSION: u64 = 2;
 /// `ServiceStatus` version 2 adds the fused vehicles; the decoder reads 1 and 2.
 pub const STATUS_SCHEMA_VERSION: u64 = 2;
-/// `VehicleTrackFrame`, a message of its own, at its first version.
-pub const VEHICLE_TRACK_SCHEMA_VERSION: u64 = 1;
+/// `VehicleTrackFrame`, a message of its own: version 2 adds the optional custody `epoch`.
+/// The decoder reads 1 and 2; the encoder writes 2 only for a frame with an epoch.
+pub const VEHICLE_TRACK_SCHEMA_VERSION: u64 = 2;
 
 /// Why a frame was not tracked (a `FrameError`'s `reason`), or why a decoder refused a payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

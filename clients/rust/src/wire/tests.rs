@@ -500,13 +500,14 @@ fn track_frame(version: u64) -> TrackFrame {
             hits: vec![3; n],
             age: vec![4; n],
             time_since_update: vec![0; n],
-            covariance: (version == 2).then(|| vec![upper; n]),
-            age_s: (version == 2).then(|| vec![0.4, 12.5]),
-            time_since_update_s: (version == 2).then(|| vec![0.0, 0.1]),
+            covariance: (version >= 2).then(|| vec![upper; n]),
+            age_s: (version >= 2).then(|| vec![0.4, 12.5]),
+            time_since_update_s: (version >= 2).then(|| vec![0.0, 0.1]),
             existence: None,
             sensor_stamp_ns: None,
         },
         schema_version: version,
+        epoch: None,
     }
 }
 
@@ -533,14 +534,53 @@ fn track_frames_of_both_versions_round_trip_and_version_1_has_no_new_columns() {
 }
 
 #[test]
-fn a_version_2_frame_without_ages_is_not_encoded_and_version_3_is_refused() {
+fn an_epoch_travels_in_version_3_only() {
+    let mut t = track_frame(3);
+    t.epoch = Some(1 << 40);
+    let bytes = encode_track_frame(&t).unwrap();
+    let back = decode_track_frame(&bytes, &DecodeLimits::default()).unwrap();
+    assert_eq!((back.schema_version, back.epoch), (3, Some(1 << 40)));
+    assert_eq!(back, t);
+    // Version 2 has no such field: the encoder leaves it out (the bytes a version-2 reader
+    // takes), and a version-2 frame that holds one is refused, as such a reader would.
+    t.schema_version = 2;
+    let v2 = encode_track_frame(&t).unwrap();
+    assert_eq!(v2, encode_track_frame(&track_frame(2)).unwrap());
+    let mut value = rmpv::decode::read_value(&mut &bytes[..]).unwrap();
+    if let Value::Map(m) = &mut value {
+        m[0].1 = Value::from(2);
+    }
+    let mut relabelled = Vec::new();
+    rmpv::encode::write_value(&mut relabelled, &value).unwrap();
+    let r = decode_track_frame(&relabelled, &DecodeLimits::default()).unwrap_err();
+    assert_eq!(
+        (r.reason, r.field.as_deref()),
+        (ErrorReason::ExtraField, Some("epoch"))
+    );
+    // Version 3 without an epoch, and one out of range.
+    let plain = decode_track_frame(
+        &encode_track_frame(&track_frame(3)).unwrap(),
+        &DecodeLimits::default(),
+    )
+    .unwrap();
+    assert_eq!(plain.epoch, None);
+    t.schema_version = 3;
+    t.epoch = Some(1 << 63);
+    assert_eq!(
+        encode_track_frame(&t).unwrap_err().field.as_deref(),
+        Some("epoch")
+    );
+}
+
+#[test]
+fn a_version_2_frame_without_ages_is_not_encoded_and_version_4_is_refused() {
     let mut t = track_frame(2);
     t.tracks.age_s = None;
     assert_eq!(
         encode_track_frame(&t).unwrap_err().field.as_deref(),
         Some("tracks.age_s")
     );
-    t.schema_version = 3;
+    t.schema_version = 4;
     assert_eq!(
         encode_track_frame(&t).unwrap_err().reason,
         ErrorReason::WrongVersion

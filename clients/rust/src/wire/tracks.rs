@@ -9,7 +9,7 @@ use super::header::{
     pose_field, unpack_map, version_field, DecodeLimits,
 };
 use super::pack::Packer;
-use super::reasons::{ErrorReason, TrackState, TRACK_SCHEMA_VERSION};
+use super::reasons::{ErrorReason, TrackState, TRACK_EPOCH_SCHEMA_VERSION};
 use super::rejection::{Checked, Invalid, Rejection};
 use super::value::Map;
 
@@ -93,8 +93,11 @@ pub struct TrackFrame {
     /// Service wall clock (Unix ns) when the tracks were published.
     pub published_ns: u64,
     pub tracks: TrackColumns,
-    /// 1 or 2: what the frame was decoded from, and what `encode_track_frame` writes.
+    /// 1, 2 or 3: what the frame was decoded from, and what `encode_track_frame` writes.
     pub schema_version: u64,
+    /// Version 3: the stream's custody epoch (schemas/README.md, "Custody epoch (fencing)");
+    /// None when the frame carries none. The encoder writes it in version 3 only.
+    pub epoch: Option<u64>,
 }
 
 impl TrackFrame {
@@ -228,8 +231,17 @@ pub(crate) fn read_tracks(
     Ok(tracks)
 }
 
+/// The optional `epoch` of a tracks message of a version that has it (else absent: an `epoch`
+/// key is then an unknown one, as to a reader of that version).
+pub(crate) fn epoch_field(f: &mut Fields<'_>, has_epoch: bool) -> Checked<Option<u64>> {
+    if !has_epoch {
+        return Ok(None);
+    }
+    f.optional("epoch", None, |v| nullable(v, int64))
+}
+
 fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checked<TrackFrame> {
-    let schema_version = check_version_in(map, 1, TRACK_SCHEMA_VERSION)?;
+    let schema_version = check_version_in(map, 1, TRACK_EPOCH_SCHEMA_VERSION)?;
     let mut f = Fields::new(value, "TrackFrame")?;
     version_field(&mut f)?;
     let vehicle = f.required("vehicle", name)?.to_owned();
@@ -250,6 +262,7 @@ fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checke
         Layout::V2
     };
     let raw = f.required("tracks", |v| raw_tracks(v, layout))?;
+    let epoch = epoch_field(&mut f, schema_version >= TRACK_EPOCH_SCHEMA_VERSION)?;
     f.finish()?;
     let tracks = read_tracks(raw, limits, 0)?;
     Ok(TrackFrame {
@@ -265,6 +278,7 @@ fn decode_checked(map: &Map<'_>, value: &V<'_>, limits: &DecodeLimits) -> Checke
         published_ns,
         tracks,
         schema_version,
+        epoch,
     })
 }
 
@@ -329,14 +343,17 @@ fn check_frame(t: &TrackFrame) -> Checked<()> {
     check_int64_field("received_ns", t.received_ns)?;
     check_int64_field("published_ns", t.published_ns)?;
     match t.schema_version {
-        1 | 2 => check_columns(&t.tracks, t.schema_version == 2)?,
+        1..=3 => check_columns(&t.tracks, t.schema_version >= 2)?,
         v => {
             return Err(Invalid::at(
                 ErrorReason::WrongVersion,
                 "schema_version",
-                format!("version {v} not supported (this client speaks 1, 2)"),
+                format!("version {v} not supported (this client speaks 1, 2, 3)"),
             ))
         }
+    }
+    if let Some(epoch) = t.epoch {
+        check_int64_field("epoch", epoch)?;
     }
     if let Some(p) = &t.pose {
         check_finite(p.as_slice(), "pose")?;
@@ -381,12 +398,16 @@ pub(crate) fn write_columns(p: &mut Packer, c: &TrackColumns, v2: bool, extra: u
 
 /// The frame as msgpack, byte for byte what the service writes (`pose` always present, nil
 /// when absent). Mostly for tests and tools: the service is what publishes tracks. A vehicle's
-/// columns (`existence`, `sensor_stamp_ns`) are not part of a TrackFrame and are left out.
+/// columns (`existence`, `sensor_stamp_ns`) are not part of a TrackFrame and are left out; so
+/// is `epoch` from a version before 3, which has no such field.
 pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
     check_frame(t).map_err(|e| e.into_rejection(Some(t.seq), Some(t.stamp_ns)))?;
     let c = &t.tracks;
+    let epoch = t
+        .epoch
+        .filter(|_| t.schema_version >= TRACK_EPOCH_SCHEMA_VERSION);
     let mut p = Packer::new(512 + c.count() * 88);
-    p.map(12);
+    p.map(12 + usize::from(epoch.is_some()));
     p.key("schema_version").uint(t.schema_version);
     p.key("vehicle").str(&t.vehicle);
     p.key("sensor").str(&t.sensor);
@@ -402,6 +423,9 @@ pub fn encode_track_frame(t: &TrackFrame) -> Result<Vec<u8>, Rejection> {
     p.key("received_ns").uint(t.received_ns);
     p.key("published_ns").uint(t.published_ns);
     p.key("tracks");
-    write_columns(&mut p, c, t.schema_version == 2, 0);
+    write_columns(&mut p, c, t.schema_version >= 2, 0);
+    if let Some(epoch) = epoch {
+        p.key("epoch").uint(epoch);
+    }
     Ok(p.finish())
 }

@@ -2,7 +2,7 @@
 //! tracker fed by its sensors. Its columns are a `TrackFrame` version 2's plus `existence` and
 //! `sensor_stamp_ns` (one value per sensor of `sensors`).
 //!
-//! Order of checks (schemas/README.md, "VehicleTrackFrame"): the payload, the version (1), the
+//! Order of checks (schemas/README.md, "VehicleTrackFrame"): the payload, the version (1 or 2), the
 //! fields in table order and unknown keys; `sensors` unique, `sensor_state` one per sensor,
 //! `sensor` one of `sensors`; the row cap, each column's length and finiteness; `existence`
 //! within [0, 1], `sensor_stamp_ns` at least -1.
@@ -18,7 +18,9 @@ use super::pack::Packer;
 use super::reasons::{ErrorReason, SensorCondition, VEHICLE_TRACK_SCHEMA_VERSION};
 use super::rejection::{Checked, Invalid, Rejection};
 use super::status::MAX_FUSED_SENSORS;
-use super::tracks::{check_columns, raw_tracks, read_tracks, write_columns, Layout, TrackColumns};
+use super::tracks::{
+    check_columns, epoch_field, raw_tracks, read_tracks, write_columns, Layout, TrackColumns,
+};
 use super::value::Map;
 
 /// A `sensor_stamp_ns` value: that sensor never updated the track.
@@ -52,9 +54,21 @@ pub struct VehicleTrackFrame {
     /// Every column of a `TrackFrame` version 2, and `existence` and `sensor_stamp_ns`
     /// (both `Some` in a decoded frame, and needed by the encoder).
     pub tracks: TrackColumns,
+    /// Version 2: the vehicle stream's custody epoch (schemas/README.md, "Custody epoch
+    /// (fencing)"); None when the frame carries none.
+    pub epoch: Option<u64>,
 }
 
 impl VehicleTrackFrame {
+    /// The version the encoder writes: 2 with an epoch, else 1 (the bytes of before it).
+    pub fn schema_version(&self) -> u64 {
+        if self.epoch.is_some() {
+            VEHICLE_TRACK_SCHEMA_VERSION
+        } else {
+            1
+        }
+    }
+
     /// Track `i`'s fleet-unique id `<vehicle>/@vehicle/<id>` (schemas/README.md, "Track
     /// identity"); None when `i` is out of range.
     pub fn global_id(&self, i: usize) -> Option<String> {
@@ -128,11 +142,7 @@ fn decode_checked(
     value: &V<'_>,
     limits: &DecodeLimits,
 ) -> Checked<VehicleTrackFrame> {
-    check_version_in(
-        map,
-        VEHICLE_TRACK_SCHEMA_VERSION,
-        VEHICLE_TRACK_SCHEMA_VERSION,
-    )?;
+    let version = check_version_in(map, 1, VEHICLE_TRACK_SCHEMA_VERSION)?;
     let mut f = Fields::new(value, "VehicleTrackFrame")?;
     version_field(&mut f)?;
     let vehicle = f.required("vehicle", name)?.to_owned();
@@ -156,6 +166,7 @@ fn decode_checked(
         array(v, 0, Some(MAX_FUSED_SENSORS), condition)
     })?;
     let raw = f.required("tracks", |v| raw_tracks(v, Layout::Vehicle))?;
+    let epoch = epoch_field(&mut f, version >= VEHICLE_TRACK_SCHEMA_VERSION)?;
     f.finish()?;
 
     check_sensors(&sensor, &sensors, sensor_state.len())?;
@@ -177,6 +188,7 @@ fn decode_checked(
         sensors,
         sensor_state,
         tracks,
+        epoch,
     })
 }
 
@@ -241,6 +253,9 @@ fn check_frame(t: &VehicleTrackFrame) -> Checked<()> {
     if let Some(p) = &t.pose {
         check_finite(p.as_slice(), "pose")?;
     }
+    if let Some(epoch) = t.epoch {
+        check_int64_field("epoch", epoch)?;
+    }
     Ok(())
 }
 
@@ -250,8 +265,8 @@ pub fn encode_vehicle_track_frame(t: &VehicleTrackFrame) -> Result<Vec<u8>, Reje
     check_frame(t).map_err(|e| e.into_rejection(Some(t.seq), Some(t.stamp_ns)))?;
     let c = &t.tracks;
     let mut p = Packer::new(768 + c.count() * (104 + 8 * t.sensors.len()));
-    p.map(14);
-    p.key("schema_version").uint(VEHICLE_TRACK_SCHEMA_VERSION);
+    p.map(14 + usize::from(t.epoch.is_some()));
+    p.key("schema_version").uint(t.schema_version());
     p.key("vehicle").str(&t.vehicle);
     p.key("seq").uint(t.seq);
     p.key("stamp_ns").uint(t.stamp_ns);
@@ -277,6 +292,9 @@ pub fn encode_vehicle_track_frame(t: &VehicleTrackFrame) -> Result<Vec<u8>, Reje
         let flat: Vec<i64> = stamps.iter().flatten().copied().collect();
         p.key("sensor_stamp_ns")
             .bin(&super::columns::to_bytes(&flat));
+    }
+    if let Some(epoch) = t.epoch {
+        p.key("epoch").uint(epoch);
     }
     Ok(p.finish())
 }

@@ -735,7 +735,7 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     const msgpack::object_handle handle = unpack(data, size, limits);
     const Fields top(handle.get(), "");
     peek = {peek_int(top, "seq"), peek_int(top, "stamp_ns")};
-    const int version = check_version(top, 1, kTrackSchemaVersion);
+    const int version = check_version(top, 1, kTrackEpochSchemaVersion);
     TrackFrame f;
     f.schema_version = version;
     Header h = header_fields(top);
@@ -749,8 +749,16 @@ inline Result<TrackFrame> decode_track_frame(const void* data, std::size_t size,
     const Layout layout = version == 1 ? Layout::v1 : Layout::v2;
     const Fields tracks(map_field(top, "tracks", "TrackColumns"), "tracks.");
     const TrackBins bins = track_bins(tracks, layout);
-    top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
-                        "pose", "key_frame", "instance", "received_ns", "published_ns", "tracks"});
+    if (version >= kTrackEpochSchemaVersion) {
+      f.epoch = optional_int64_field(top, "epoch");
+      top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
+                          "pose", "key_frame", "instance", "received_ns", "published_ns", "tracks",
+                          "epoch"});
+    } else {  // then an epoch is an unknown key, as to a reader of that version
+      top.refuse_unknown({"schema_version", "vehicle", "sensor", "seq", "stamp_ns", "frame_id",
+                          "pose", "key_frame", "instance", "received_ns", "published_ns",
+                          "tracks"});
+    }
     f.tracks = read_tracks(bins, layout, limits, 0);
     return f;
   } catch (const Reject& r) {

@@ -274,17 +274,22 @@ inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   check_int64("TrackFrame.received_ns", f.received_ns);
   check_int64("TrackFrame.published_ns", f.published_ns);
   const bool has_ages = t.age_s && t.time_since_update_s;
-  const int version = f.schema_version.value_or(has_ages ? kTrackSchemaVersion : 1);
-  if (version != 1 && version != 2) {
-    refuse("TrackFrame.schema_version", std::to_string(version) + " is not one of 1, 2");
+  const int newest = f.epoch ? kTrackEpochSchemaVersion : kTrackSchemaVersion;
+  const int version = f.schema_version.value_or(has_ages ? newest : 1);
+  if (version < 1 || version > kTrackEpochSchemaVersion) {
+    refuse("TrackFrame.schema_version", std::to_string(version) + " is not one of 1, 2, 3");
   }
-  if (version == 2 && !has_ages) {
-    refuse("TrackFrame.tracks.age_s", "a version 2 TrackFrame needs both ages");
+  if (version >= 2 && !has_ages) {
+    refuse("TrackFrame.tracks.age_s",
+           "a version " + std::to_string(version) + " TrackFrame needs both ages");
   }
-  check_track_columns("TrackFrame", t, version == 2);
+  check_track_columns("TrackFrame", t, version >= 2);
+  if (f.epoch) check_int64("TrackFrame.epoch", *f.epoch);
+  // An earlier version has no such field: left out, the bytes a reader of that version takes.
+  const bool with_epoch = f.epoch && version >= kTrackEpochSchemaVersion;
 
   Writer w;
-  w.map(12);
+  w.map(12 + (with_epoch ? 1 : 0));
   w.key("schema_version").uint(static_cast<std::uint64_t>(version));
   w.key("vehicle").str(f.vehicle);
   w.key("sensor").str(f.sensor);
@@ -297,7 +302,8 @@ inline std::vector<std::uint8_t> encode(const TrackFrame& f) {
   w.key("received_ns").uint(f.received_ns);
   w.key("published_ns").uint(f.published_ns);
   w.key("tracks");
-  write_track_columns(w, t, version == 2, 0);
+  write_track_columns(w, t, version >= 2, 0);
+  if (with_epoch) w.key("epoch").uint(*f.epoch);
   return w.take();
 }
 

@@ -16,14 +16,16 @@
 namespace simpletrack::wire {
 
 inline constexpr int kSchemaVersion = 1;
-// TrackFrame is at version 2 (covariance, ages in seconds); decode_track_frame reads
-// 1 and 2 (schemas/README.md, "Versioning").
+// TrackFrame version 2 added covariance and ages in seconds, version 3 the optional custody
+// epoch; decode_track_frame reads 1 to 3 (schemas/README.md, "Versioning").
 inline constexpr int kTrackSchemaVersion = 2;
+inline constexpr int kTrackEpochSchemaVersion = 3;
 // DetectionFrame version 2 adds the optional extrinsic; decode_detection_frame reads 1 and 2,
 // encode writes 2 only for a frame with an extrinsic.
 inline constexpr int kDetectionSchemaVersion = 2;
-// VehicleTrackFrame, a vehicle's fused tracks, is a message of its own at its version 1.
-inline constexpr int kVehicleTrackSchemaVersion = 1;
+// VehicleTrackFrame, a vehicle's fused tracks, is a message of its own; its version 2 adds
+// the optional custody epoch, and encode writes 2 only for a frame with one.
+inline constexpr int kVehicleTrackSchemaVersion = 2;
 // Where a sensor's name would be in a key, the chunk of a vehicle's fused stream
 // (`<prefix>/<vehicle>/@vehicle/tracks`): verbatim, so `*` never matches it.
 inline constexpr std::string_view kVehicleStream = "@vehicle";
@@ -207,8 +209,12 @@ struct TrackFrame {
   std::uint64_t received_ns = 0;
   std::uint64_t published_ns = 0;
   TrackColumns tracks;
-  // What encode writes: nullopt = 2 when the tracks have their ages in seconds, else 1.
-  // decode_track_frame sets the version it read, so a frame re-encodes as it came.
+  // Version 3: the stream's custody epoch (schemas/README.md, "Custody epoch (fencing)");
+  // nullopt when the frame carries none. encode writes it in version 3 only.
+  std::optional<std::uint64_t> epoch;
+  // What encode writes: nullopt = 3 when the tracks have their ages in seconds and there is
+  // an epoch, 2 with the ages only, else 1. decode_track_frame sets the version it read, so
+  // a frame re-encodes as it came.
   std::optional<int> schema_version;
 
   // The track's fleet-unique id "<vehicle>/<sensor>/<id>" (schemas/README.md, "Track identity").
@@ -235,6 +241,11 @@ struct VehicleTrackFrame {
                                      // tracks.sensor_stamp_ns row
   std::vector<SensorCondition> sensor_state;
   TrackColumns tracks;  // version 2's columns, existence and sensor_stamp_ns
+  // Version 2: the vehicle stream's custody epoch; nullopt when the frame carries none.
+  std::optional<std::uint64_t> epoch;
+
+  // The version encode writes: 2 with an epoch, else 1 (the bytes of before it).
+  int version() const { return epoch ? 2 : 1; }
 
   // The track's fleet-unique id "<vehicle>/@vehicle/<id>" (schemas/README.md, "Track identity").
   std::string global_id(std::size_t i) const {
@@ -292,7 +303,7 @@ inline bool operator==(const TrackFrame& a, const TrackFrame& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&
          a.stamp_ns == b.stamp_ns && a.frame_id == b.frame_id && a.pose == b.pose &&
          a.key_frame == b.key_frame && a.instance == b.instance && a.received_ns == b.received_ns &&
-         a.published_ns == b.published_ns && a.tracks == b.tracks &&
+         a.published_ns == b.published_ns && a.tracks == b.tracks && a.epoch == b.epoch &&
          a.schema_version == b.schema_version;
 }
 inline bool operator==(const VehicleTrackFrame& a, const VehicleTrackFrame& b) {
@@ -300,7 +311,7 @@ inline bool operator==(const VehicleTrackFrame& a, const VehicleTrackFrame& b) {
          a.sensor == b.sensor && a.sensor_seq == b.sensor_seq && a.frame_id == b.frame_id &&
          a.pose == b.pose && a.instance == b.instance && a.received_ns == b.received_ns &&
          a.published_ns == b.published_ns && a.sensors == b.sensors &&
-         a.sensor_state == b.sensor_state && a.tracks == b.tracks;
+         a.sensor_state == b.sensor_state && a.tracks == b.tracks && a.epoch == b.epoch;
 }
 inline bool operator==(const FrameError& a, const FrameError& b) {
   return a.vehicle == b.vehicle && a.sensor == b.sensor && a.seq == b.seq &&

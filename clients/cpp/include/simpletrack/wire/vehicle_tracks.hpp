@@ -1,6 +1,6 @@
 // VehicleTrackFrame (`<prefix>/<vehicle>/@vehicle/tracks`), a vehicle's fused tracks: its
 // decoder and encoder. Order of checks (schemas/README.md, "VehicleTrackFrame"): the payload,
-// the version (1), the fields in table order and unknown keys; `sensors` unique,
+// the version (1 or 2), the fields in table order and unknown keys; `sensors` unique,
 // `sensor_state` one per sensor, `sensor` one of `sensors`; the row cap, each column's length
 // (sensor_stamp_ns: count x sensors values) and finiteness; existence within [0, 1] and
 // sensor_stamp_ns at least -1.
@@ -103,7 +103,7 @@ inline Result<VehicleTrackFrame> decode_vehicle_track_frame(const void* data, st
     const msgpack::object_handle handle = unpack(data, size, limits);
     const Fields top(handle.get(), "");
     peek = {peek_int(top, "seq"), peek_int(top, "stamp_ns")};
-    check_version(top, kVehicleTrackSchemaVersion, kVehicleTrackSchemaVersion);
+    const int version = check_version(top, 1, kVehicleTrackSchemaVersion);
     VehicleTrackFrame f;
     f.vehicle = name_field(top, "vehicle");
     f.seq = int64_field(top, "seq");
@@ -119,9 +119,16 @@ inline Result<VehicleTrackFrame> decode_vehicle_track_frame(const void* data, st
     f.sensor_state = sensor_state_field(top);
     const Fields tracks(map_field(top, "tracks", "VehicleTrackColumns"), "tracks.");
     const TrackBins bins = track_bins(tracks, Layout::vehicle);
-    top.refuse_unknown({"schema_version", "vehicle", "seq", "stamp_ns", "sensor", "sensor_seq",
-                        "frame_id", "pose", "instance", "received_ns", "published_ns", "sensors",
-                        "sensor_state", "tracks"});
+    if (version >= 2) {
+      f.epoch = optional_int64_field(top, "epoch");
+      top.refuse_unknown({"schema_version", "vehicle", "seq", "stamp_ns", "sensor", "sensor_seq",
+                          "frame_id", "pose", "instance", "received_ns", "published_ns",
+                          "sensors", "sensor_state", "tracks", "epoch"});
+    } else {  // then an epoch is an unknown key, as to a version-1 reader
+      top.refuse_unknown({"schema_version", "vehicle", "seq", "stamp_ns", "sensor", "sensor_seq",
+                          "frame_id", "pose", "instance", "received_ns", "published_ns",
+                          "sensors", "sensor_state", "tracks"});
+    }
 
     check_sensors(f.sensor, f.sensors, f.sensor_state.size());
     f.tracks = read_tracks(bins, Layout::vehicle, limits, f.sensors.size());
@@ -177,10 +184,11 @@ inline std::vector<std::uint8_t> encode(const VehicleTrackFrame& f) {
     check_rows("VehicleTrackFrame.tracks.sensor_stamp_ns." + std::to_string(i),
                (*t.sensor_stamp_ns)[i], f.sensors.size());
   }
+  if (f.epoch) check_int64("VehicleTrackFrame.epoch", *f.epoch);
 
   Writer w;
-  w.map(14);
-  w.key("schema_version").uint(static_cast<std::uint64_t>(kVehicleTrackSchemaVersion));
+  w.map(14 + (f.epoch ? 1 : 0));
+  w.key("schema_version").uint(static_cast<std::uint64_t>(f.version()));
   w.key("vehicle").str(f.vehicle);
   w.key("seq").uint(f.seq);
   w.key("stamp_ns").uint(f.stamp_ns);
@@ -201,6 +209,7 @@ inline std::vector<std::uint8_t> encode(const VehicleTrackFrame& f) {
   flat.reserve(n * f.sensors.size());
   for (const auto& row : *t.sensor_stamp_ns) flat.insert(flat.end(), row.begin(), row.end());
   w.key("sensor_stamp_ns").column(flat);
+  if (f.epoch) w.key("epoch").uint(*f.epoch);
   return w.take();
 }
 
