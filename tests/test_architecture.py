@@ -199,3 +199,16 @@ def _loaded_after(statement: str) -> set[str]:
 def test_light_imports_stay_light(statement: str, absent: set[str]) -> None:
     loaded = _loaded_after(statement)
     assert not absent & loaded, absent & loaded
+
+
+def test_the_custody_machine_is_pure() -> None:
+    """Custody decisions read no clock and touch no network: the worker passes ``now`` in
+    and carries the actions out (server/custody_machine.py)."""
+    path = ROOT / "service" / "simpletrack" / "server" / "custody_machine.py"
+    allowed = {"__future__", "collections", "collections.abc", "dataclasses", "enum", "hashlib"}
+    allowed |= {"typing"}
+    for name in _imports(path):
+        if name.startswith("simpletrack."):
+            assert name.startswith("simpletrack.wire."), f"custody machine imports {name}"
+        else:
+            assert name in allowed, f"custody machine imports {name} (no Zenoh, no clock)"

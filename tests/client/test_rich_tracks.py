@@ -15,6 +15,7 @@ import pytest
 from simpletrack.client.publisher import DetectionPublisher
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
 from simpletrack.core.boxes import Boxes
+from simpletrack.server.custody_machine import epoch_tag
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.wire.messages import TRACK_FRAME_V1
 from tests.service_helpers import ServiceProcess, stamp, start_service, wait_for
@@ -65,12 +66,15 @@ def _run(svc: ServiceProcess, vehicle: str, frames: int) -> tuple[list[TrackMess
     return got, raw
 
 
-def test_default_service_publishes_version_2_with_covariance_ages_and_global_ids(
+def test_default_service_publishes_version_3_with_covariance_ages_epoch_and_global_ids(
     default_service: ServiceProcess,
 ) -> None:
     got, raw = _run(default_service, "rich", 6)
     assert [m.seq for m in got] == list(range(6))
-    assert {m.schema_version for m in got} == {2}
+    assert {m.schema_version for m in got} == {3}
+    # One custody all along: one epoch, the instance's tag in its low bits.
+    assert len({m.epoch for m in got}) == 1 and got[0].epoch is not None
+    assert got[0].epoch & 0xFFFF == epoch_tag(default_service.instance)
     first, last = got[0], got[-1]
     assert last.tracks.covariance is not None and last.tracks.age_s is not None
     cov = last.tracks.covariance_matrices()
@@ -88,7 +92,7 @@ def test_default_service_publishes_version_2_with_covariance_ages_and_global_ids
     assert last.global_ids == [f"rich/lidar/{i}" for i in ids]
     assert last.global_id(1) == f"rich/lidar/{ids[1]}"
     assert set(first.global_ids) == set(last.global_ids)  # the same tracks all along
-    assert msgpack.unpackb(raw[-1], raw=False)["schema_version"] == 2
+    assert msgpack.unpackb(raw[-1], raw=False)["schema_version"] == 3
 
 
 def test_tracks_schema_version_1_publishes_what_a_version_1_reader_takes(
@@ -113,4 +117,4 @@ def test_tracks_schema_version_1_publishes_what_a_version_1_reader_takes(
 
 def test_an_unknown_tracks_schema_version_is_refused_at_startup(tmp_path: Path) -> None:
     with pytest.raises(AssertionError, match="tracks_schema_version"):
-        start_service(tmp_path, instance="rich-v3", env={"SIMPLETRACK_TRACKS_SCHEMA_VERSION": "3"})
+        start_service(tmp_path, instance="rich-v4", env={"SIMPLETRACK_TRACKS_SCHEMA_VERSION": "4"})

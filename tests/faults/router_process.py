@@ -4,24 +4,27 @@ same port."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from simpletrack.spawn import free_port
 from tests.service_helpers import ROOT, ServiceProcess
 
 ROUTER_CODE = """
-import signal, sys, threading, zenoh
+import json, signal, sys, threading, zenoh
 c = zenoh.Config()
 c.insert_json5("mode", '"router"')
 c.insert_json5("listen/endpoints", '["%s"]' % sys.argv[1])
 c.insert_json5("connect/endpoints", "[]")
 c.insert_json5("scouting/multicast/enabled", "false")
+for key, value in json.loads(sys.argv[2]).items():
+    c.insert_json5(key, json.dumps(value))
 session = zenoh.open(c)
 stop = threading.Event()
 signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -35,11 +38,12 @@ session.close()
 class Router:
     endpoint: str
     proc: subprocess.Popen[bytes] | None = None
+    config: dict[str, object] = field(default_factory=dict)  # Zenoh config key -> value
 
     def start(self, timeout: float = 30.0) -> Router:
         assert self.proc is None or self.proc.poll() is not None, "router already running"
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", ROUTER_CODE, self.endpoint],
+            [sys.executable, "-c", ROUTER_CODE, self.endpoint, json.dumps(self.config)],
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
         )
@@ -66,8 +70,8 @@ class Router:
                 self.proc.wait()
 
 
-def new_router() -> Router:
-    return Router(f"tcp/127.0.0.1:{free_port()}")
+def new_router(config: dict[str, object] | None = None) -> Router:
+    return Router(f"tcp/127.0.0.1:{free_port()}", config=config or {})
 
 
 def start_client_service(

@@ -12,7 +12,8 @@ from mcap.reader import make_reader
 
 from simpletrack.mcap import writer as writer_module
 from simpletrack.mcap.writer import McapRecorder
-from simpletrack.wire import encode_detection_frame
+from simpletrack.wire import encode_detection_frame, encode_track_frame
+from tests.client.test_epoch_fencing import _arrays
 from tests.service_helpers import moving_cars, stamp
 
 
@@ -97,3 +98,32 @@ def test_a_sample_the_writer_cannot_write_is_counted_and_the_rest_kept(
     with open(out, "rb") as f:
         seqs = [m.sequence for _, c, m in make_reader(f).iter_messages() if "json" not in c.topic]
     assert seqs == [0, 0, 1, 1]  # each frame's raw message and its scene (no json filter hit)
+
+
+def _tracks(seq: int, epoch: int, instance: str) -> _Sample:
+    payload = encode_track_frame(
+        vehicle="veh", sensor="lidar", seq=seq, stamp_ns=stamp(seq), frame_id="lidar",
+        pose=None, key_frame=True, instance=instance, received_ns=stamp(seq),
+        published_ns=stamp(seq), tracks=_arrays(), schema_version=3, epoch=epoch,
+    )  # fmt: skip
+    return _Sample("fleet/veh/lidar/tracks", _Payload(payload))
+
+
+def test_a_fenced_holders_tracks_are_left_out_and_counted(tmp_path: Path) -> None:
+    """The epoch rule of schemas/README.md: a message of a lower epoch than the stream has
+    shown is a fenced holder's; a repeat of the new holder's is recorded as it came."""
+    out = tmp_path / "fenced.mcap"
+    rec = McapRecorder(out, "fleet", foxglove=False)
+    for sample in (
+        _tracks(0, 1 << 16, "a"),
+        _tracks(1, 2 << 16, "b"),  # b took the stream over
+        _tracks(1, 1 << 16, "a"),  # a, stopped, resumed: stale
+        _tracks(1, 2 << 16, "b"),  # b again (a failover's repeat)
+        _tracks(2, 2 << 16, "b"),
+    ):
+        rec.on_sample(sample)  # type: ignore[arg-type]
+    rec.close()
+    assert (rec.messages, rec.stale) == (4, 1)
+    with open(out, "rb") as f:
+        seqs = [m.sequence for _, c, m in make_reader(f).iter_messages()]
+    assert seqs == [0, 1, 1, 2]

@@ -227,13 +227,15 @@ def mismatches(
             repeats += republished
             e = expected[seq]
             for _, a in answers:
-                same = (
-                    np.array_equal(np.sort(a.id), np.sort(e.id))
-                    and a.id.shape == e.id.shape
-                    and np.allclose(
-                        a.center[np.argsort(a.id)], e.center[np.argsort(e.id)], atol=1e-4
-                    )
-                )
-                if not same:
+                if not same_tracks(a, e):
                     unequal.append(f"{name} seq {seq}: ids {sorted(a.id)} vs {sorted(e.id)}")
     return counts, unequal, repeats
+
+
+def same_tracks(a: TrackArrays, e: TrackArrays) -> bool:
+    """The same ids, and each at the same place (to float32 rounding)."""
+    return (
+        a.id.shape == e.id.shape
+        and np.array_equal(np.sort(a.id), np.sort(e.id))
+        and np.allclose(a.center[np.argsort(a.id)], e.center[np.argsort(e.id)], atol=1e-4)
+    )

@@ -13,6 +13,7 @@ from typing import BinaryIO
 import zenoh
 from mcap.writer import Writer
 
+from simpletrack.client.stream_filter import StreamFilter, Verdict
 from simpletrack.mcap.format import (
     MESSAGE_ENCODING,
     METADATA_NAME,
@@ -24,7 +25,7 @@ from simpletrack.mcap.format import (
     version,
 )
 from simpletrack.mcap.foxglove import JSON_ENCODING, Derived, FoxgloveChannels, foxglove_schema
-from simpletrack.wire.header import peek_header
+from simpletrack.wire.header import peek_custody, peek_header
 
 _UINT32 = 1 << 32
 
@@ -61,6 +62,9 @@ class McapRecorder:
         self._closed = False
         self.messages = 0
         self.unrecorded = 0
+        self.stale = 0  # tracks messages of fenced holders, left out
+        # Epochs only: every exact repeat on the wire is recorded as it came.
+        self._epochs = StreamFilter(recent_frames=1)
         self.last_ns: int | None = None
         self._queue: queue.Queue[tuple[int, str, bytes] | None] = queue.Queue(QUEUE_SAMPLES)
         self._thread = threading.Thread(target=self._write_loop, name="mcap-writer", daemon=True)
@@ -106,6 +110,14 @@ class McapRecorder:
         if parts is None:
             return
         seq, stamp = peek_header(payload)
+        if parts[3] == "tracks" and seq is not None and stamp is not None:
+            # A fenced holder's message (an epoch below the stream's highest) is not what
+            # planners got: not recorded (schemas/README.md, "Custody epoch").
+            epoch = peek_custody(payload)[1]
+            if self._epochs.admit(key, seq, stamp, epoch) is Verdict.STALE:
+                with self._lock:
+                    self.stale += 1
+                return
         publish = received if stamp is None else stamp
         # MCAP's sequence is 32 bits: wire seqs past that wrap.
         sequence = 0 if seq is None else seq % _UINT32

@@ -20,15 +20,25 @@ import time
 from types import FrameType
 from typing import Any
 
+import msgpack
 import zenoh
 from zenoh import ext
 
 from simpletrack.core import jit, solvers
 from simpletrack.core.tracker import Tracker
 from simpletrack.core.vehicle import Condition
-from simpletrack.server.custody import Heard, Shared
+from simpletrack.server.custody import Shared
+from simpletrack.server.custody_machine import Heard
 from simpletrack.server.group import Membership, Role, undeclare
-from simpletrack.server.intake import Inbound, Intake, Kind, WorkQueue, depth, worker_index
+from simpletrack.server.intake import (
+    BurstBudget,
+    Inbound,
+    Intake,
+    Kind,
+    WorkQueue,
+    depth,
+    worker_index,
+)
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
 from simpletrack.server.misses import MissCounter
@@ -42,8 +52,9 @@ from simpletrack.server.subscriptions import Subscriptions
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
 from simpletrack.wire.codec import DecodeLimits, Rejection, decode_track_frame, encode
+from simpletrack.wire.header import peek_custody
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
-from simpletrack.wire.models import ServiceStatus
+from simpletrack.wire.models import SensorStatus, ServiceStatus
 from simpletrack.wire.reasons import STATUS_SCHEMA_VERSION, ErrorReason
 from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame
 
@@ -101,6 +112,8 @@ class Service:
         self._token: Any = None
         self._owned: Subscriptions | None = None  # subscribe = "owned"
         self._handoff_queryables: list[Any] = []
+        # How this member's name appears in its own tracks messages (msgpack key and value).
+        self._own_instance = msgpack.packb("instance") + msgpack.packb(settings.instance)
 
     # ------------------------------------------------------------------ start
     def start(self) -> None:
@@ -146,6 +159,11 @@ class Service:
                     f"instance {s.instance!r} is already live on prefix {s.prefix!r} (its "
                     f"liveliness token is out): give each instance its own --instance"
                 )
+        # One budget for every queue of the member and the frames waiting on its takeovers:
+        # a recovery burst is kept beyond the bounds (never shed) while it lasts
+        # (docs/SERVICE.md, "Recovered frames are kept").
+        self.burst = BurstBudget(s.burst_bytes)
+        self.metrics.watch_burst(self.burst)
         ctx = Context(
             settings=s,
             session=session,
@@ -165,19 +183,22 @@ class Service:
             fusion=self.fusion,
             per_sensor_output=s.fusion.per_sensor_output,
             vehicle_frame_id=s.fusion.vehicle_frame_id,
+            burst=self.burst,
         )
-        self._queues = [WorkQueue(s.queue_size) for _ in range(s.workers)]
+        self._queues = [
+            WorkQueue(s.queue_size, budget=self.burst, catchup_after_s=s.catchup_after_s)
+            for _ in range(s.workers)
+        ]
         self._workers = [Worker(i, q, ctx) for i, q in enumerate(self._queues)]
         if s.state_dir is not None:
             # Id reservations first: a sensor whose snapshot is damaged still has one.
             for vehicle, sensor, floor in read_all_ids(s.state_dir):
                 self._worker_of(vehicle, sensor).sensors.restore_floor(vehicle, sensor, floor)
-            alone = len(self.membership.members) == 1
+            # Each stream's snapshot is taken up at its first frame, as a takeover: another
+            # member may hold it, fresher (then used only if none does); alone, the gap
+            # since the snapshot is replayed from the vehicle's cache first.
             for snap in read_all(s.state_dir):
-                if alone:
-                    self._worker_of(snap.vehicle, snap.sensor).sensors.adopt(snap)
-                else:  # another member may hold it, fresher: used only if none does
-                    shared.local[f"{snap.vehicle}/{snap.sensor}"] = snap
+                self._worker_of(snap.vehicle, snap.sensor).custody.machine.restart([snap])
         self._metrics_functions()
         for w in self._workers:
             w.start()
@@ -265,7 +286,7 @@ class Service:
             workers=s.workers,
             backpressure=s.backpressure.value,
             state_dir=str(s.state_dir) if s.state_dir else None,
-            restored=sum(len(w.sensors) for w in self._workers),
+            restored=sum(len(w.custody.machine.local) for w in self._workers),
             group=s.group,
             members=len(self.membership.members),
         )
@@ -299,6 +320,9 @@ class Service:
 
     def _on_router_change(self, connected: bool, router: str) -> None:
         self.membership.router_changed(connected)
+        at = time.monotonic() if connected else None
+        for w in self._workers:
+            w.connected_at = at
         if connected:
             log.info("router_connected", router=router, routers=self._routers_connected())
         else:
@@ -345,7 +369,7 @@ class Service:
         )
 
     def _standby_count(self) -> int:
-        return sum(len(w.custody.standby) for w in self._workers)
+        return sum(w.custody.machine.standby_count() for w in self._workers)
 
     def _on_members(self, before: frozenset[str], after: frozenset[str]) -> None:
         self.metrics.members.set(len(after))
@@ -372,7 +396,7 @@ class Service:
             return
         frame, tracks = out
         next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, None)
+        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, None, frame.epoch)
 
     def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
         """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""
@@ -384,11 +408,12 @@ class Service:
             return
         frame, tracks = out
         next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq)
+        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch)
 
     def _heard_stream(self, sample: zenoh.Sample) -> tuple[str, str] | None:
         """The stream of a tracks sample worth learning from: one this member owns or
-        stands by for and does not hold (its own tracks teach nothing)."""
+        stands by for and does not hold (its own tracks teach nothing; another member's
+        with a higher epoch fence it)."""
         names = self.keys.sensor_of(str(sample.key_expr))
         if names is None or self._shared is None or len(self.membership.members) <= 1:
             return None  # alone, the only tracks are this member's own
@@ -397,11 +422,26 @@ class Service:
             return None
         # Heard from the start of the settle time on, before the workers exist (none holds
         # a sensor yet then).
-        if self._workers and self._worker_of(*names).sensors.get(stream) is not None:
-            return None
+        if self._workers:
+            worker = self._worker_of(*names)
+            held = worker.sensors.get(stream)
+            if held is not None:
+                self._fence_if_superseded(worker, stream, held.epoch, sample.payload.to_bytes())
+                return None
         return names
 
-    def _heard(self, stream: str, stamp_ns: int, next_id: int, seq: int | None) -> None:
+    def _fence_if_superseded(self, worker: Worker, stream: str, epoch: int, payload: bytes) -> None:
+        """A stream held here, heard from another member with a higher custody epoch: that
+        member took it over while this one could not see it; this one's state is stale."""
+        if self._own_instance in payload:
+            return  # this member's own message: the usual case, no parse
+        instance, theirs = peek_custody(payload)
+        if instance != self.settings.instance and theirs is not None and theirs > epoch:
+            worker.supersede(stream)
+
+    def _heard(
+        self, stream: str, stamp_ns: int, next_id: int, seq: int | None, epoch: int | None
+    ) -> None:
         assert self._shared is not None
         published = self._shared.published
         with self._shared.lock:
@@ -410,10 +450,11 @@ class Service:
                 published[stream] = Heard(
                     max(old.stamp_ns, stamp_ns),
                     max(old.next_id, next_id),
-                    seq if old.seq is None else max(old.seq, seq if seq is not None else old.seq),
+                    _top(old.seq, seq),
+                    _top(old.epoch, epoch),
                 )
             elif len(published) < MAX_PUBLISHED:
-                published[stream] = Heard(stamp_ns, next_id, seq)
+                published[stream] = Heard(stamp_ns, next_id, seq, epoch)
 
     def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
         names = self.keys.service_sensor_of(str(sample.key_expr))
@@ -483,6 +524,24 @@ class Service:
         """The service's status; ``only`` (vehicle, sensor) keeps that sensor's entry alone
         (what a resuming publisher asks for: its last processed seq)."""
         sensors = [st for w in self._workers for st in w.sensors.status()]
+        # Restored from disk, not taken up yet (no frame since the start): where they stand.
+        sensors += [
+            SensorStatus(
+                vehicle=snap.vehicle,
+                sensor=snap.sensor,
+                last_seq=snap.last_seq,
+                last_stamp_ns=snap.last_stamp_ns,
+                frames=snap.frames,
+                active_tracks=0,
+                idle_s=round((time.time_ns() - snap.written_ns) * 1e-9, 3),
+                rate_hz=0.0,
+                resets=0,
+                implausible_frames=0,
+            )
+            for w in self._workers
+            for snap in list(w.custody.machine.local.values())
+            if snap.sensor != VEHICLE_STREAM
+        ]
         now = time.monotonic()
         vehicles = []
         for v in (v for w in self._workers for v in w.sensors.vehicles()):
@@ -630,6 +689,10 @@ class Service:
             time.sleep(0.02)
             held = sum(len(w.sensors) for w in self._workers)
         log.info("handoffs_done" if not held else "handoffs_timed_out", left_with_standby=held)
+
+
+def _top(a: int | None, b: int | None) -> int | None:
+    return a if b is None else b if a is None else max(a, b)
 
 
 def _stream_names(vehicle: str, sensor: str) -> bool:

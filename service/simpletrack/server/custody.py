@@ -1,6 +1,7 @@
-"""A worker's side of the group protocol (docs/SCALE.md): which frames it tracks, keeps or
-ignores; taking a sensor over (ask the holder, else the standby checkpoint, then replay);
-releasing one to a member that asks; sending checkpoints to each sensor's standby.
+"""A worker's side of the group protocol (docs/SCALE.md): the Zenoh and registry half of
+custody. What to do with each frame, which state to take over and what to replay is decided
+by the pure machine (server/custody_machine.py); this carries out what it cannot: asking the
+group and the vehicles' caches, adopting and releasing states, checkpoints to the standbys.
 
 Only the worker's thread calls it, except ``release`` after the workers have stopped.
 """
@@ -11,18 +12,31 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeAlias
 
 import zenoh
 
-from simpletrack.server.group import Membership, Role
-from simpletrack.server.intake import Inbound, stamp_of
+from simpletrack.server.custody_machine import (
+    Action,
+    Budget,
+    CustodyMachine,
+    FetchCache,
+    Heard,
+    Limits,
+    Role,
+    SensorCoverage,
+    Source,
+    Takeover,
+    View,
+)
+from simpletrack.server.group import Membership
+from simpletrack.server.intake import FRAME_OVERHEAD, Inbound
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import MSGPACK, Outbox
 from simpletrack.server.registry import SensorRegistry
 from simpletrack.server.sensors import SensorState
 from simpletrack.server.snapshots import ID_BLOCK
-from simpletrack.server.standby import Standby
 from simpletrack.server.vehicles import VehicleState
 from simpletrack.wire.codec import DecodeLimits, Rejection, decode_message, encode
 from simpletrack.wire.header import peek_header
@@ -30,71 +44,7 @@ from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import SensorSnapshot
 
 log = get_logger("group")
-# A sensor released to a member this one cannot see yet (its token is on the way) is not
-# taken back for this long: the views agree well within it.
-RELEASE_GUARD_S = 2.0
-RELEASED_KEPT_S = 60.0
 _SNAP_LIMITS = DecodeLimits(max_bytes=1 << 30, max_boxes=1 << 30)
-
-
-@dataclass(frozen=True, slots=True)
-class Released:
-    snapshot: SensorSnapshot
-    to: str
-    at: float
-
-
-@dataclass(slots=True)
-class Takeover:
-    """How a sensor came to this member: ``state`` None means a sensor nobody held."""
-
-    vehicle: str
-    sensor: str
-    source: str  # "handoff", "failover", "restore", "lost" or "new"
-    snapshot: SensorSnapshot | None  # the state taken over
-    heard: Heard | None  # the last tracks planners got, from any member
-    state: SensorState | None = None
-    vehicle_state: VehicleState | None = None  # a fused vehicle's, instead of ``state``
-    replay: list[Inbound] = field(default_factory=list)
-    missed: int = 0  # frames after the state that neither the standby nor the vehicle kept
-    from_cache: int = 0  # frames replayed from the vehicle's cache
-    done: bool = False
-
-    @property
-    def covered_stamp_ns(self) -> int | None:
-        """Frames up to it are in the state already."""
-        return None if self.snapshot is None else self.snapshot.last_stamp_ns
-
-    @property
-    def published_stamp_ns(self) -> int | None:
-        """Planners have tracks up to it. The holder of a hand-off published all it heard; a
-        member killed mid-put may have written its last tracks to some links only (Zenoh
-        writes one link after another), so after a failover the last frame heard is
-        published again and ``TrackSubscriber`` drops the repeat where it arrived before."""
-        if self.heard is None:
-            return None
-        return self.heard.stamp_ns if self.source == "handoff" else self.heard.stamp_ns - 1
-
-    @property
-    def published_seq(self) -> int | None:
-        """A fused vehicle's: the message seq planners have up to (as ``published_stamp_ns``:
-        after a failover the last heard is sent again)."""
-        if self.heard is None or self.heard.seq is None:
-            return None
-        return self.heard.seq if self.source == "handoff" else self.heard.seq - 1
-
-    @property
-    def needs_cache(self) -> bool:
-        return self.missed > 0
-
-
-@dataclass(frozen=True, slots=True)
-class Heard:
-    """The latest tracks frame heard on a sensor's key, from any member."""
-
-    stamp_ns: int
-    next_id: int  # above every id heard on the key
-    seq: int | None = None  # a fused vehicle's message seq (its own counter)
 
 
 @dataclass
@@ -110,8 +60,6 @@ class Shared:
     handoff_timeout_s: float
     # vehicle/sensor -> the last tracks frame heard on its key (any member's)
     published: dict[str, Heard] = field(default_factory=dict)
-    # vehicle/sensor -> a snapshot from this member's state dir, used when no member has it
-    local: dict[str, SensorSnapshot] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     counts: dict[str, int] = field(  # for the status reply; the metrics count the same
         default_factory=lambda: {"handoffs_in": 0, "handoffs_out": 0, "failovers": 0}
@@ -122,140 +70,128 @@ class Shared:
             self.counts[what] += 1
 
 
+Frames: TypeAlias = list[Action[Inbound]]
+
+
+def peek(item: Inbound) -> tuple[str, int | None, int | None]:
+    """What the machine reads of a frame: its key, seq and stamp (the header alone)."""
+    seq, stamp = peek_header(item.payload)
+    return item.key, seq, stamp
+
+
 class Custody:
     def __init__(
-        self, shared: Shared, registry: SensorRegistry, outbox: Outbox, standby_frames: int
+        self,
+        shared: Shared,
+        registry: SensorRegistry,
+        outbox: Outbox,
+        limits: Limits,
+        budget: Budget | None = None,
     ) -> None:
         self.shared, self.registry, self.outbox = shared, registry, outbox
-        self.standby = Standby(standby_frames)
-        self.released: dict[str, Released] = {}
-        self.settled: set[str] = set()  # sensors whose takeover was done (held or new)
+        self.machine: CustodyMachine[Inbound] = CustodyMachine(
+            peek, limits, budget, lambda item: len(item.payload) + FRAME_OVERHEAD
+        )
         # Called with a stream's key before it is released (a fused vehicle's waiting
         # frames are applied first, so that its state is exact).
         self.before_release: Callable[[str], None] = lambda key: None
-        self.fused_sensors: tuple[str, ...] = ()  # the sensors a vehicle's stream fuses
+        self._taking: dict[str, Takeover[Inbound]] = {}
 
-    # ------------------------------------------------------------------ routing
-    def role(self, sensor: str) -> Role:
-        role = self.shared.membership.role(sensor)
-        if role is Role.OWNER:
-            rel = self.released.get(sensor)
-            if (
-                rel is not None
-                and rel.to not in self.shared.membership.members
-                and time.monotonic() - rel.at < RELEASE_GUARD_S
-            ):
-                return Role.STANDBY  # keep its frames in case the asker never shows up
-        return role
+    @property
+    def released(self) -> dict[str, object]:
+        return self.machine.released  # type: ignore[return-value]
+
+    def view(self, stream: str) -> View:
+        m = self.shared.membership
+        return View(m.me, m.members, m.role(stream), m.owner(stream))
+
+    def heard(self, stream: str) -> Heard | None:
+        with self.shared.lock:
+            return self.shared.published.get(stream)
+
+    def role(self, stream: str) -> Role:
+        return self.machine.role(stream, self.view(stream), time.monotonic())
 
     def on_checkpoint(self, item: Inbound) -> None:
         snap = decode_message(item.payload, SensorSnapshot, _SNAP_LIMITS)
         if isinstance(snap, Rejection):
             log.warning("checkpoint_invalid", key=item.key, reason=snap.reason.value)
             return
-        sensor = f"{snap.vehicle}/{snap.sensor}"
-        if self.registry.get(sensor) is None:
-            self.standby.checkpoint(sensor, snap)
+        stream = f"{snap.vehicle}/{snap.sensor}"
+        if self.registry.get(stream) is None:
+            self.machine.checkpoint(stream, snap)
 
     # ------------------------------------------------------------------ taking over
-    def take_over(
-        self,
-        vehicle: str,
-        sensor: str,
-        replies: list[SensorSnapshot],
-        waiting: Sequence[Inbound] = (),
-    ) -> Takeover:
-        """This member owns the sensor and does not hold it: its latest state is the
-        holder's answer (``replies``, from ``ask``), else the standby checkpoint, else this
-        member's state directory; then the frames kept since. ``waiting``: the frames that
-        came while the group was asked. ``complete`` finishes it (after ``fetch_cache``
-        when the frames leave a gap after the state)."""
-        key = f"{vehicle}/{sensor}"
-        self.settled.add(key)
-        self.released.pop(key, None)
-        checkpoint, frames = self.standby.take(key)
-        if sensor == VEHICLE_STREAM:
-            # Kept as the sensors' own streams before fusion was on in the group (a rolling
-            # upgrade's last old member just left): those no member answered on the
-            # sensor's own key are the vehicle's now.
-            for name in self.fused_sensors:
-                with self.shared.lock:
-                    answered = self.shared.published.get(f"{vehicle}/{name}")
-                kept = self.standby.take(f"{vehicle}/{name}")[1]
-                upto = None if answered is None else answered.stamp_ns
-                frames += [f for f in kept if _after(f, upto)]
-        snap, source = None, "new"
-        if replies:
-            snap, source = max(replies, key=lambda s: s.written_ns), "handoff"
+    def answered(self, stream: str, replies: Sequence[SensorSnapshot]) -> Frames:
+        """The group answered: the machine picks the state, the registry adopts it (its ids
+        exact: the floors apply only if the replay leaves a hole), the machine says what
+        to replay (or to ask the vehicle's cache first)."""
+        t = self.machine.answered(stream, replies, self.heard)
+        if t.source is Source.LOST and t.heard is not None:
+            retired = self.registry.retired
+            retired[stream] = max(retired.get(stream, 0), t.heard.next_id)
+        adopted = None if t.snapshot is None else self.registry.adopt(t.snapshot, use_floor=False)
+        if t.source is Source.RESTORE and adopted is not None:
+            self.shared.metrics.restored.inc()
+        # A state taken here, even a fresh one, has a higher epoch than any before it.
+        epoch = t.epoch(self.shared.instance)
+        if adopted is None:
+            self.registry.epochs[stream] = epoch  # for the state its first frame creates
         else:
-            local = self.shared.local.pop(key, None)
-            candidates = [(c, "failover") for c in (checkpoint,) if c is not None]
-            candidates += [(c, "restore") for c in (local,) if c is not None]
-            if candidates:
-                snap, source = max(candidates, key=lambda c: c[0].written_ns)
-        with self.shared.lock:
-            heard = self.shared.published.get(key)
-        if source == "new" and heard is not None:
-            # Another member published this sensor's tracks and nobody has its state (it
-            # died before its first checkpoint, or with its standby): tracks start afresh,
-            # their ids above every one heard.
-            source = "lost"
-            self.registry.retired[key] = max(self.registry.retired.get(key, 0), heard.next_id)
-        t = Takeover(vehicle, sensor, source, snap, heard)
-        adopted = None if snap is None else self.registry.adopt(snap, use_floor=source == "restore")
+            adopted.epoch = epoch
+        coverage: VehicleState | SensorCoverage[Inbound] | None = None
         if isinstance(adopted, VehicleState):
-            t.vehicle_state = adopted
-            t.replay = [f for f in frames if not adopted.covers(f)]
-            if source in ("failover", "handoff"):
-                t.missed = adopted.holes([*t.replay, *waiting])
-            return t
-        t.state = adopted
-        t.replay = [f for f in frames if _after(f, t.covered_stamp_ns)]
-        if source in ("failover", "handoff") and snap is not None:
-            t.missed = _holes(snap.last_seq, [*t.replay, *waiting])
-        return t
+            coverage = adopted
+            adopted.published_seq = t.published_seq  # messages planners have are not sent
+        elif isinstance(adopted, SensorState) and t.snapshot is not None:
+            coverage = SensorCoverage(t.snapshot.last_seq, t.snapshot.last_stamp_ns, peek)
+        self._taking[stream] = t
+        return self._done(stream, self.machine.adopted(stream, coverage))
 
-    def complete(self, t: Takeover, cached: list[Inbound], waiting: Sequence[Inbound] = ()) -> None:
-        """Add the frames the vehicle's cache gave (those after the state the standby did
-        not keep), count what is still missing, and account for the takeover."""
-        vs = t.vehicle_state
-        if cached:
-            have = {(f.key, stamp_of(f)) for f in [*t.replay, *waiting]}
-            extra = [
-                f
-                for f in cached
-                if (not vs.covers(f) if vs is not None else _after(f, t.covered_stamp_ns))
-                and (f.key, stamp_of(f)) not in have
-            ]
-            t.from_cache = len(extra)
-            t.replay += extra  # put in order with the waiting frames by the worker
-            if vs is not None:
-                t.missed = vs.holes([*t.replay, *waiting])
-            elif t.snapshot is not None:
-                t.missed = _holes(t.snapshot.last_seq, [*t.replay, *waiting])
+    def cached(self, stream: str, frames: Sequence[Inbound]) -> Frames:
+        return self._done(stream, self.machine.cached(stream, frames))
+
+    def _done(self, stream: str, acts: Frames) -> Frames:
+        """A takeover complete (no cache to wait for): accounted and logged."""
+        if any(isinstance(a, FetchCache) for a in acts):
+            return acts
+        t = self._taking.pop(stream, None)
+        if t is None:
+            return acts
         m = self.shared.metrics
-        if t.source == "handoff":
+        if t.source is Source.HANDOFF:
             m.handoffs.labels(direction="in").inc()
             self.shared.count("handoffs_in")
-        elif t.source in ("failover", "lost"):
+        elif t.source in (Source.FAILOVER, Source.LOST):
             m.failovers.inc()
             self.shared.count("failovers")
-        held = t.state if t.state is not None else t.vehicle_state
-        if t.missed and held is not None:
-            # Tracks may have been born in the frames lost: new ids start past any of them.
-            floor = 0 if t.heard is None else t.heard.next_id - held.id_base
-            held.tracker.next_id = max(held.tracker.next_id + ID_BLOCK, floor)
+        if t.replay:
+            m.replayed.inc(len(t.replay))
+        vehicle, sensor = stream.split("/")
         log.info(
             "sensor_taken_over",
-            vehicle=t.vehicle,
-            sensor=t.sensor,
-            source=t.source,
+            vehicle=vehicle,
+            sensor=sensor,
+            source=t.source.value,
             seq=None if t.snapshot is None else t.snapshot.last_seq,
             replay=len(t.replay),
             from_vehicle_cache=t.from_cache,
             missed=t.missed,
+            exact_ids=t.exact_ids,
+            epoch=t.epoch(self.shared.instance),
             members=len(self.shared.membership.members),
         )
+        return acts
+
+    def raise_ids(self, stream: str, floor: int) -> None:
+        """Tracks may have been born in frames nobody has: new ids start past any of them,
+        above every id heard and this member's reservation on disk."""
+        held = self.registry.get(stream)
+        if held is None:
+            return
+        disk = max(self.registry.retired.get(stream, 0), self.registry.id_floor.get(stream, 0))
+        lowest = max(floor, disk) - held.id_base
+        held.tracker.next_id = max(held.tracker.next_id + ID_BLOCK, lowest)
 
     def fetch_cache(
         self, vehicle: str, sensor: str, on_done: Callable[[list[Inbound]], None]
@@ -293,10 +229,6 @@ class Custody:
             log.warning("vehicle_cache_failed", vehicle=vehicle, sensor=sensor, error=str(e))
             on_done([])
 
-    def needs_asking(self) -> bool:
-        """False when no other member could hold a sensor (alone, nothing released)."""
-        return len(self.shared.membership.members) > 1 or bool(self.released)
-
     def ask(
         self,
         vehicle: str,
@@ -333,28 +265,42 @@ class Custody:
 
     # ------------------------------------------------------------------ giving away
     def release(self, vehicle: str, sensor: str, to: str) -> SensorSnapshot | None:
-        """Give the sensor up to ``to`` (a member that owns it in its view): its exact
+        """Give the stream up to ``to`` (a member that owns it in its view): its exact
         state, and this member tracks it no more. Asked again, the same state."""
         key = f"{vehicle}/{sensor}"
         state = self.registry.get(key)
         if state is None:
-            rel = self.released.get(key)
+            rel = self.machine.released.get(key)
             return None if rel is None else rel.snapshot
+        self.machine.release_asked(key, to, held=True)
         self.before_release(key)
         snap = state.snapshot(self.registry.digest)
         # Released first, then gone: a question read without the lock (app.py) must never
         # see the sensor neither held nor released.
-        self.released[key] = Released(snap, to, time.monotonic())
+        self.machine.released_as(key, snap, to, time.monotonic())
         self.registry.release(key)
         self.outbox.forget(vehicle, sensor)
-        self.settled.discard(key)
         self.shared.metrics.handoffs.labels(direction="out").inc()
         self.shared.count("handoffs_out")
         log.info("sensor_handed_off", vehicle=vehicle, sensor=sensor, to=to, seq=snap.last_seq)
         return snap
 
+    def stash(self, stream: str) -> SensorSnapshot | None:
+        """A fence: the stream's state leaves the registry without a message or a checkpoint
+        and becomes this member's own candidate for the takeover that follows."""
+        state = self.registry.get(stream)
+        if state is None:
+            return None
+        snap = state.snapshot(self.registry.digest)
+        vehicle, sensor = stream.split("/")
+        self.machine.stashed(stream, snap, self.outbox.last.get((vehicle, sensor)))
+        self.registry.release(stream)
+        self.outbox.forget(vehicle, sensor)
+        log.warning("sensor_fenced", vehicle=vehicle, sensor=sensor, seq=snap.last_seq)
+        return snap
+
     def release_unowned(self) -> None:
-        """Sensors held here that another member now owns go when it asks; those it never
+        """Streams held here that another member now owns go when it asks; those it never
         asks for (silent) are let go here, so a later frame finds them with that member."""
         for key in list(self.registry.sensors):
             if self.role(key) is not Role.OWNER:
@@ -396,27 +342,4 @@ class Custody:
         return sent
 
     def housekeeping(self) -> None:
-        now = time.monotonic()
-        for key in [k for k, r in self.released.items() if now - r.at > RELEASED_KEPT_S]:
-            del self.released[key]
-        for key in self.standby.sensors():
-            if self.shared.membership.role(key) is Role.NONE:
-                self.standby.forget(key)
-
-
-def _after(item: Inbound, stamp_ns: int | None) -> bool:
-    if stamp_ns is None:
-        return True
-    stamp = stamp_of(item)
-    return stamp is None or stamp > stamp_ns
-
-
-def _holes(last_seq: int | None, replay: list[Inbound], limit: int = 100_000) -> int:
-    """Seqs between the state's last and the last frame to replay that none of them has."""
-    if last_seq is None or not replay:
-        return 0
-    seqs = {s for s in (peek_header(f.payload)[0] for f in replay) if s is not None}
-    top = max(seqs, default=last_seq)
-    if top - last_seq > limit:  # a restarted publisher's seq: not a gap to count
-        return 0
-    return sum(1 for q in range(last_seq + 1, top + 1) if q not in seqs)
+        self.machine.housekeeping(time.monotonic(), self.shared.membership.role)

@@ -110,6 +110,10 @@ class FusedFrames:
         if not len(state.buffer):
             self._waiting.discard(f"{state.vehicle}/{VEHICLE_STREAM}")
 
+    def forget(self, stream: str) -> None:
+        """The vehicle left this worker without its waiting frames applied (a fence)."""
+        self._waiting.discard(stream)
+
     def release_due(self) -> float | None:
         """Release the vehicles whose first waiting frame's window is over (a frame of a
         vehicle goes at once when its sensors pass it: ``track`` releases then); returns when
@@ -222,6 +226,7 @@ class FusedFrames:
             sensors=list(state.tracker.sensors),
             sensor_state=conditions,
             tracks=wire,
+            epoch=state.epoch,
         )
         if not quiet:
             w.outbox.vehicle_tracks(state.vehicle, payload)

@@ -20,23 +20,17 @@ import hashlib
 import threading
 import time
 from collections.abc import Callable, Iterable
-from enum import Enum
 from typing import Any
 
 import zenoh
 
+from simpletrack.server.custody_machine import Role
 from simpletrack.server.logs import get_logger
 from simpletrack.wire.keys import SERVICE_CHUNK, Keys
 
 log = get_logger("group")
 ROUTER_SETTLE_S = 2.0
 TICK_S = 0.1
-
-
-class Role(Enum):
-    OWNER = "owner"
-    STANDBY = "standby"
-    NONE = "none"
 
 
 def weight(member: str, sensor: str) -> int:

@@ -8,6 +8,13 @@ Inside a worker's queue every key has its own lane and the worker serves the lan
 (round robin), with the snapshot queries as one more lane: a sensor that floods, or a flood
 of queries, waits behind itself, never in front of its neighbours (docs/SERVICE.md, "What a
 fault can cost").
+
+Catch-up frames (docs/SERVICE.md, "Recovered frames are kept"): a frame that arrives further
+behind its stamp than its sensor's usual delay (recovered from a vehicle's cache after an
+outage, replayed at a takeover), and the few frames of that sensor queued behind it, are kept
+beyond ``queue_size`` on the member's ``BurstBudget`` (bytes) instead of being shed: the lane
+policy only ever evicts fresh frames. A catch-up frame the budget has no room for is refused
+and announced as ``missed``.
 """
 
 from __future__ import annotations
@@ -31,6 +38,21 @@ from simpletrack.wire.reasons import ErrorReason
 MAX_QUERIES = 16
 _CONTROL = ""  # the queries' place in the rotation: no Zenoh key is empty
 
+# What a kept frame costs the burst budget beyond its payload: the Inbound, its key and its
+# entry in the lane (~430 B measured with tracemalloc on CPython 3.11), rounded up.
+FRAME_OVERHEAD = 512
+# The setting catchup_after_s's default: how much further behind its stamp than usual a frame
+# must arrive to be a catch-up frame. Well above delivery jitter (ms) and a GIL-bound worker's
+# waits, well below a router outage (seconds) or a vehicle's 10 s cache.
+CATCHUP_AFTER_S = 0.5
+# A sensor's usual delay (receipt - stamp, clock offset included) is the least seen, let rise
+# by 1/LAG_RISE of the time since (10 ms per s): a clock stepped back is relearned in a
+# minute, and a 10 s outage moves it by only 0.1 s.
+LAG_RISE = 100
+# Sensors whose usual delay a queue remembers; past it, the longest known is forgotten (its
+# next frame counts as its first).
+MAX_CLOCKS = 16_384
+
 
 class Kind(Enum):
     DETECTIONS = "detections"
@@ -53,6 +75,56 @@ def stamp_of(item: Inbound) -> int | None:
     return peek_header(item.payload)[1]
 
 
+class BurstBudget:
+    """The bytes a member may hold beyond its queues' ``queue_size`` (setting ``burst_bytes``),
+    shared by every worker's queue of the member (and by whatever else keeps frames waiting,
+    e.g. a takeover's): ``take(n)`` reserves, ``give(n)`` returns. Thread-safe; never waits."""
+
+    def __init__(self, limit: int) -> None:
+        if limit < 0:
+            raise ValueError(f"a burst budget cannot be negative: {limit}")
+        self.limit = limit
+        self._in_use = 0
+        self._peak = 0
+        self._kept = 0
+        self._lock = threading.Lock()
+
+    @property
+    def in_use(self) -> int:
+        """Bytes taken and not yet given back."""
+        return self._in_use
+
+    @property
+    def peak(self) -> int:
+        """The most bytes ever in use at once."""
+        return self._peak
+
+    @property
+    def kept(self) -> int:
+        """Frames the queues kept beyond ``queue_size`` so far (``take(..., kept=True)``)."""
+        return self._kept
+
+    def take(self, n: int, *, kept: bool = False) -> bool:
+        """Reserve ``n`` bytes; False (nothing reserved) when that would pass the limit.
+        ``kept``: the bytes are a frame a queue keeps beyond ``queue_size`` (counted)."""
+        if n < 0:
+            raise ValueError(f"cannot take {n} bytes")
+        with self._lock:
+            if self._in_use + n > self.limit:
+                return False
+            self._in_use += n
+            self._peak = max(self._peak, self._in_use)
+            self._kept += kept
+            return True
+
+    def give(self, n: int) -> None:
+        """Return ``n`` bytes taken before."""
+        with self._lock:
+            if n < 0 or n > self._in_use:
+                raise ValueError(f"cannot give back {n} bytes: {self._in_use} in use")
+            self._in_use -= n
+
+
 @dataclass(slots=True)
 class Dropped:
     """Frames of one key the queue had to give up, announced by the worker in one notice."""
@@ -64,29 +136,71 @@ class Dropped:
     received_ns: int  # when the first frame arrived
 
 
+Header = tuple[int | None, int | None]  # (seq, stamp_ns) as peek_header reads them
+
+
+@dataclass(slots=True)
+class _Entry:
+    n: int  # arrival order in the queue: a lane's two kinds of frames are served merged by it
+    item: Inbound
+    header: Header | None  # None: not read yet
+    cost: int = 0  # bytes on the burst budget: 0 for a fresh frame
+    behind: bool = False  # kept as a catch-up frame (else fresh, or kept as a follower)
+
+
 @dataclass(slots=True)
 class _Lane:
-    frames: deque[Inbound] = field(default_factory=deque)
+    fresh: deque[_Entry] = field(default_factory=deque)  # count against queue_size
+    kept: deque[_Entry] = field(default_factory=deque)  # on the burst budget, never evicted
     drops: deque[Dropped] = field(default_factory=deque)
+    behind: int = 0  # catch-up frames among ``kept``; the others follow them
 
 
 class WorkQueue:
-    """The frames waiting for one worker, at most ``maxsize`` in all, in one lane per key;
-    the drop notices of each lane; and a bounded lane of control callables (queries).
-    ``get`` serves the lanes in turn, one item per turn."""
+    """The frames waiting for one worker, in one lane per key: at most ``maxsize`` fresh ones
+    in all, plus the catch-up frames kept on ``budget``; the drop notices of each lane; and a
+    bounded lane of control callables (queries). ``get`` serves the lanes in turn, one item
+    per turn.
 
-    def __init__(self, maxsize: int, max_control: int = MAX_QUERIES) -> None:
+    Without a ``budget`` every frame is fresh (the queue of before). With one, a detection
+    frame that arrives over ``catchup_after_s`` further behind its stamp than its sensor's
+    usual delay is a catch-up frame, and so are up to ``maxsize`` frames of its sensor that
+    arrive while one waits (the rest of the same burst: frames published while the link came
+    back); they are kept beyond ``maxsize``, on the budget, until served, and never evicted.
+    """
+
+    def __init__(
+        self,
+        maxsize: int,
+        max_control: int = MAX_QUERIES,
+        *,
+        budget: BurstBudget | None = None,
+        catchup_after_s: float = CATCHUP_AFTER_S,
+    ) -> None:
+        if catchup_after_s <= 0:
+            raise ValueError(f"catchup_after_s must be positive: {catchup_after_s}")
         self.maxsize, self.max_control = maxsize, max_control
+        self.budget = budget
+        self._catchup_ns = round(catchup_after_s * 1e9)
         self._lanes: dict[str, _Lane] = {}  # keys with frames or notices waiting
         self._ring: deque[str] = deque()  # the keys of _lanes (and _CONTROL) in serving order
         self._control: deque[Callable[[], None]] = deque()
-        self._frames = 0
-        self._busy = 0  # lanes holding frames
+        self._frames = 0  # fresh and kept
+        self._fresh = 0
+        self._busy = 0  # lanes holding fresh frames
+        self._arrivals = 0
+        # key -> [usual delay (ns), when it was last set (received_ns)]
+        self._clocks: dict[str, list[int]] = {}
         self._cond = threading.Condition()
         self._closed = False
 
     def __len__(self) -> int:
         return self._frames
+
+    @property
+    def kept(self) -> int:
+        """Frames waiting beyond ``maxsize`` on the burst budget."""
+        return self._frames - self._fresh
 
     @property
     def closed(self) -> bool:
@@ -99,43 +213,127 @@ class WorkQueue:
             self._ring.append(key)
         return lane
 
-    def _append(self, item: Inbound) -> None:
-        lane = self._lane(item.key)
-        if not lane.frames:
+    def _entry(self, item: Inbound, header: Header | None) -> _Entry:
+        self._arrivals += 1
+        return _Entry(self._arrivals, item, header)
+
+    def _append_fresh(self, entry: _Entry) -> None:
+        lane = self._lane(entry.item.key)
+        if not lane.fresh:
             self._busy += 1
-        lane.frames.append(item)
+        lane.fresh.append(entry)
+        self._fresh += 1
         self._frames += 1
 
-    def _pop_frame(self, lane: _Lane) -> Inbound:
-        item = lane.frames.popleft()
+    def _pop_fresh(self, lane: _Lane) -> _Entry:
+        entry = lane.fresh.popleft()
+        self._fresh -= 1
         self._frames -= 1
-        if not lane.frames:
+        if not lane.fresh:
             self._busy -= 1
-        return item
+        return entry
+
+    def _pop_next(self, lane: _Lane) -> _Entry:
+        """The lane's oldest frame, fresh or kept (its bytes back to the budget)."""
+        if lane.kept and (not lane.fresh or lane.kept[0].n < lane.fresh[0].n):
+            entry = lane.kept.popleft()
+            self._frames -= 1
+            lane.behind -= entry.behind
+            if self.budget is not None:
+                self.budget.give(entry.cost)
+            return entry
+        return self._pop_fresh(lane)
+
+    def _header(self, item: Inbound) -> Header | None:
+        """A detection frame's header when catch-up frames are told apart (read before the
+        lock is taken: it parses the payload); else None, read only if it is shed."""
+        if self.budget is None or item.kind is not Kind.DETECTIONS:
+            return None
+        return peek_header(item.payload)
+
+    def _is_behind(self, key: str, received_ns: int, stamp_ns: int | None) -> bool:
+        """Whether a frame arrives over catchup_after_s later after its stamp than its
+        sensor's usual delay; learns that delay (the least seen, rising slowly). A sensor's
+        first frame sets it: a frame judged against its own sensor, never against the
+        service's clock, so a vehicle whose clock is off is judged like any other."""
+        if stamp_ns is None:
+            return False
+        lag = received_ns - stamp_ns
+        clock = self._clocks.get(key)
+        if clock is None:
+            if len(self._clocks) >= MAX_CLOCKS:
+                del self._clocks[next(iter(self._clocks))]
+            self._clocks[key] = [lag, received_ns]
+            return False
+        usual = clock[0] + max(0, received_ns - clock[1]) // LAG_RISE
+        if lag <= usual:
+            clock[0], clock[1] = lag, received_ns
+            return False
+        return lag - usual > self._catchup_ns
+
+    def _keep(self, item: Inbound, header: Header | None, refuse: bool) -> bool | None:
+        """Keep a catch-up frame (or one following catch-up frames of its lane) beyond
+        maxsize on the budget: True if kept; False if it is fresh, or a follower or (when not
+        ``refuse``) a catch-up frame the budget has no room for: the caller queues it as
+        fresh; None: a catch-up frame refused (the caller announces it missed)."""
+        if header is None:
+            return False
+        behind = self._is_behind(item.key, item.received_ns, header[1])
+        lane = self._lanes.get(item.key)
+        # Frames of the same burst behind it (published while the link came back) follow a
+        # catch-up frame, at most maxsize of them: a sensor cannot keep a flood this way.
+        followers = 0 if lane is None else len(lane.kept) - lane.behind
+        follows = lane is not None and lane.behind > 0 and followers < self.maxsize
+        if not (behind or follows):
+            return False
+        assert self.budget is not None  # a header is read only with a budget
+        cost = len(item.payload) + FRAME_OVERHEAD
+        if not self.budget.take(cost, kept=True):
+            return None if behind and refuse else False
+        entry = self._entry(item, header)
+        entry.cost, entry.behind = cost, behind
+        lane = self._lane(item.key)
+        lane.kept.append(entry)
+        lane.behind += behind
+        self._frames += 1
+        return True
 
     def _victim(self, arriving: str) -> _Lane:
-        """The lane that gives up its oldest frame when the queue is full: the arriving
-        key's own when it holds at least an equal share, else the one holding the most."""
+        """The lane that gives up its oldest fresh frame when the queue is full: the arriving
+        key's own when it holds at least an equal share of them, else the one holding the
+        most. Kept frames are never chosen."""
         own = self._lanes.get(arriving)
-        if own is not None and len(own.frames) * self._busy >= self._frames:
+        if own is not None and len(own.fresh) * self._busy >= self._fresh:
             return own
-        return max((lane for lane in self._lanes.values() if lane.frames), key=_depth)
+        return max((lane for lane in self._lanes.values() if lane.fresh), key=_depth)
 
     def put_drop_oldest(self, item: Inbound) -> tuple[bool, Inbound | None]:
-        """Enqueue; a full queue gives up the oldest frame of its fullest lane, returned (its
-        notice is queued for the worker to publish). ``(False, None)`` if closed."""
+        """Enqueue; a full queue gives up the oldest fresh frame of its fullest lane, returned
+        (its notice is queued for the worker to publish). ``(False, None)`` if closed;
+        ``(False, item)``: a catch-up frame refused, the budget being spent (its ``missed``
+        notice is queued)."""
+        header = self._header(item)
         with self._cond:
             if self._closed:
                 return False, None
+            kept = self._keep(item, header, refuse=True)
             evicted = None
-            if self._frames >= self.maxsize:
-                evicted = self._pop_frame(self._victim(item.key))
-            self._append(item)
-            self._cond.notify()
-        if evicted is not None:
-            # Only the header is read, and outside the lock: the worker keeps going meanwhile.
-            self.note_drop(evicted, ErrorReason.DROPPED_QUEUE_FULL, *peek_header(evicted.payload))
-        return True, evicted
+            if kept is False:
+                if self._fresh >= self.maxsize:
+                    evicted = self._pop_fresh(self._victim(item.key))
+                self._append_fresh(self._entry(item, header))
+            if kept is not None:
+                self._cond.notify()
+        if kept is None:
+            assert header is not None
+            self.note_drop(item, ErrorReason.MISSED, *header)
+            return False, item
+        if evicted is None:
+            return True, None
+        # Only the header is read, and outside the lock: the worker keeps going meanwhile.
+        seq, stamp_ns = evicted.header or peek_header(evicted.item.payload)
+        self.note_drop(evicted.item, ErrorReason.DROPPED_QUEUE_FULL, seq, stamp_ns)
+        return True, evicted.item
 
     def note_drop(
         self, item: Inbound, reason: ErrorReason, seq: int | None, stamp_ns: int | None
@@ -152,13 +350,19 @@ class WorkQueue:
             self._cond.notify()
 
     def put_blocking(self, item: Inbound) -> bool:
-        """Enqueue, waiting for room (pushes back on Zenoh). False if the queue is closed."""
+        """Enqueue, waiting for room (pushes back on Zenoh). False if the queue is closed.
+        A catch-up frame is kept on the budget without waiting; one the budget has no room
+        for waits like a fresh frame: block mode never loses one."""
+        header = self._header(item)
         with self._cond:
-            while self._frames >= self.maxsize and not self._closed:
-                self._cond.wait()
             if self._closed:
                 return False
-            self._append(item)
+            if not self._keep(item, header, refuse=False):
+                while self._fresh >= self.maxsize and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return False
+                self._append_fresh(self._entry(item, header))
             self._cond.notify_all()
             return True
 
@@ -196,9 +400,11 @@ class WorkQueue:
             if lane.drops:
                 item = lane.drops.popleft()
             else:
-                item = self._pop_frame(lane)
-                self._cond.notify_all()  # room for a blocked producer
-            if lane.frames or lane.drops:
+                entry = self._pop_next(lane)
+                item = entry.item
+                if not entry.cost:
+                    self._cond.notify_all()  # room for a blocked producer
+            if lane.fresh or lane.kept or lane.drops:
                 self._ring.append(key)
             else:
                 del self._lanes[key]
@@ -212,7 +418,7 @@ class WorkQueue:
 
 
 def _depth(lane: _Lane) -> int:
-    return len(lane.frames)
+    return len(lane.fresh)
 
 
 def worker_index(key: str, workers: int) -> int:
@@ -273,9 +479,11 @@ class Intake:
             accepted, evicted = q.put_blocking(item), None
         else:
             accepted, evicted = q.put_drop_oldest(item)
-        if evicted is not None:
+        if evicted is item:  # a catch-up frame the burst budget had no room for
+            self._on_dropped(item, ErrorReason.MISSED)
+        elif evicted is not None:
             self._on_dropped(evicted, ErrorReason.DROPPED_QUEUE_FULL)
-        if not accepted:
+        if not accepted and evicted is None:
             self._on_dropped(item, ErrorReason.DROPPED_SHUTDOWN)
 
 
@@ -284,7 +492,10 @@ def depth(queues: list[WorkQueue]) -> int:
 
 
 __all__ = [
+    "CATCHUP_AFTER_S",
+    "FRAME_OVERHEAD",
     "MAX_QUERIES",
+    "BurstBudget",
     "Dropped",
     "Inbound",
     "Intake",

@@ -11,7 +11,7 @@ import threading
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib.metadata import PackageNotFoundError, version
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -23,10 +23,17 @@ from prometheus_client import (
     ProcessCollector,
     generate_latest,
 )
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
 
 from simpletrack.core.vehicle import Condition
 from simpletrack.server.plausibility import Cause
 from simpletrack.wire.reasons import DROP_REASONS, SCHEMA_VERSION, ErrorReason
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+    from simpletrack.server.intake import BurstBudget
 
 # Frame latencies live between ~0.1 ms (decode) and seconds (a stalled queue).
 LATENCY_BUCKETS = (
@@ -232,6 +239,10 @@ class Metrics:
             ("cause", *v),
             registry=r,
         )
+        # The burst budget (docs/SERVICE.md, "Recovered frames are kept"), read at each scrape
+        # from the budget the service hands ``watch_burst`` (0 until then).
+        self.burst: BurstBudget | None = None
+        r.register(_BurstCollector(self))
         # CPU, resident memory, open fds: what a leak or a busy loop shows first (the
         # default registry has these; this one is our own). Empty off Linux.
         ProcessCollector(registry=r)
@@ -282,6 +293,41 @@ class Metrics:
     def count_error(self, reason: ErrorReason, vehicle: str) -> None:
         metric = self.dropped if reason in DROP_REASONS else self.rejected
         metric.labels(reason=reason.value, **self.labels(vehicle)).inc()
+
+    def watch_burst(self, budget: BurstBudget) -> None:
+        """Export the member's burst budget (its bytes in use, peak and limit, and the
+        frames kept on it); its refusals are ``simpletrack_frames_dropped{reason="missed"}``."""
+        self.burst = budget
+
+
+class _BurstCollector(Collector):
+    def __init__(self, metrics: Metrics) -> None:
+        self._metrics = metrics
+
+    def collect(self) -> Iterable[Metric]:
+        b = self._metrics.burst
+        yield GaugeMetricFamily(
+            "simpletrack_burst_bytes",
+            "Bytes of frames held beyond queue_size on the member's burst budget now "
+            "(catch-up frames recovered or replayed, frames waiting on a takeover)",
+            value=0 if b is None else b.in_use,
+        )
+        yield GaugeMetricFamily(
+            "simpletrack_burst_bytes_peak",
+            "The most bytes ever held at once on the burst budget",
+            value=0 if b is None else b.peak,
+        )
+        yield GaugeMetricFamily(
+            "simpletrack_burst_bytes_limit",
+            "The burst budget (setting burst_bytes); a catch-up frame past it is dropped as missed",
+            value=0 if b is None else b.limit,
+        )
+        yield CounterMetricFamily(
+            "simpletrack_burst_frames",
+            "Catch-up frames (and the frames of their burst behind them) kept beyond "
+            "queue_size on the burst budget instead of being shed",
+            value=0 if b is None else b.kept,
+        )
 
 
 class HttpEndpoint:

@@ -24,6 +24,7 @@ MSGPACK = zenoh.Encoding("application/msgpack")
 DROP_DETAILS = {
     ErrorReason.DROPPED_QUEUE_FULL: "worker queue full (backpressure drop_oldest)",
     ErrorReason.DROPPED_SHUTDOWN: "service shutting down",
+    ErrorReason.MISSED: "recovered frames past the member's burst_bytes budget",
 }
 
 
@@ -79,7 +80,8 @@ def drop_notice(reason: ErrorReason, seqs: list[int | None], stamp_ns: int | Non
     """The refusal standing for frames shed together: ``seq``/``stamp_ns`` are the first's."""
     n = len(seqs)
     what = DROP_DETAILS.get(reason, reason.value)
-    detail = what if n == 1 else f"{n} frames: {what}"
+    # A missed notice always starts with its count, as the takeover's and the outage's do.
+    detail = what if n == 1 and reason is not ErrorReason.MISSED else f"{n} frames: {what}"
     return Rejection(reason, None, detail, seqs[0], stamp_ns)
 
 
@@ -107,6 +109,8 @@ class Outbox:
             instance,
         )
         self._tracks: dict[tuple[str, str], zenoh.Publisher] = {}
+        # (vehicle, stream) -> its last tracks message: a fence stashes it with the state
+        self.last: dict[tuple[str, str], bytes] = {}
         self._errors: dict[tuple[str, str], zenoh.Publisher] = {}
 
     def _publisher(
@@ -122,11 +126,20 @@ class Outbox:
     def tracks(self, vehicle: str, sensor: str, payload: bytes) -> None:
         key = self.keys.tracks(vehicle, sensor)
         self._publisher(self._tracks, key, (vehicle, sensor)).put(payload)
+        self.last[(vehicle, sensor)] = payload
 
     def vehicle_tracks(self, vehicle: str, payload: bytes) -> None:
         """A fused vehicle's tracks (``<prefix>/<vehicle>/@vehicle/tracks``)."""
         key = self.keys.vehicle_tracks(vehicle)
         self._publisher(self._tracks, key, (vehicle, VEHICLE_STREAM)).put(payload)
+        self.last[(vehicle, VEHICLE_STREAM)] = payload
+
+    def resend(self, vehicle: str, sensor: str, payload: bytes) -> None:
+        """A stream's last message again (at least once: a fence may have cut it off)."""
+        if sensor == VEHICLE_STREAM:
+            self.vehicle_tracks(vehicle, payload)
+        else:
+            self.tracks(vehicle, sensor, payload)
 
     def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int, held: bool) -> None:
         """Publish and log a refusal. ``held``: the sensor is one the worker holds (it gets a
@@ -187,6 +200,7 @@ class Outbox:
 
     def forget(self, vehicle: str, sensor: str) -> None:
         """Undeclare a sensor's publishers (evicted, or the worker is stopping)."""
+        self.last.pop((vehicle, sensor), None)
         for table in (self._tracks, self._errors):
             pub = table.pop((vehicle, sensor), None)
             if pub is not None:

@@ -80,6 +80,8 @@ class SensorRegistry:
         self.vehicle_digest = vehicle_digest
         self.sensors: dict[str, Stream] = {}
         self.retired: dict[str, int] = {}  # evicted sensor -> lowest unused id
+        # stream -> the custody epoch a takeover gave it, for the state ``add`` creates
+        self.epochs: dict[str, int] = {}
         # sensor -> its id floor on disk (every id it published is below); absent: read it
         self.id_floor: dict[str, int] = {}
         self.snapshot_done_at = time.monotonic()
@@ -113,6 +115,7 @@ class SensorRegistry:
             state = self.new_vehicle(vehicle, floor)
         else:
             state = SensorState(vehicle, sensor, self.new_tracker(), id_base=floor)
+        state.epoch = self.epochs.pop(key, state.epoch)
         self.sensors[key] = state
         self.metrics.active_sensors.inc()
         log.info("sensor_added", vehicle=vehicle, sensor=sensor, seq=seq, id_base=state.id_base)

@@ -84,6 +84,7 @@ class SensorState:
     # (standby, frames) of the last checkpoint sent: unchanged, nothing to send
     checkpoint_mark: tuple[str, int] | None = None
     _undo: _Undo | None = None
+    epoch: int = 0  # custody epoch (docs/SCALE.md, "Fencing"): on every tracks message
     resets: int = 0  # on this instance (the status's, not kept in snapshots)
     implausible: int = 0  # frames tracked with a plausibility warning, on this instance
     tracked_at: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_FRAMES))
@@ -181,6 +182,7 @@ class SensorState:
             config_digest=digest,
             tracker=self.tracker.to_bytes() if with_tracker else None,
             written_ns=time.time_ns(),
+            epoch=self.epoch,
         )
 
 

@@ -61,7 +61,7 @@ from simpletrack.session import (
     check_roles,
 )
 from simpletrack.wire.models import NAME_PATTERN
-from simpletrack.wire.reasons import TRACK_SCHEMA_VERSION
+from simpletrack.wire.reasons import TRACK_EPOCH_SCHEMA_VERSION
 
 ENV_PREFIX = "SIMPLETRACK_"
 DOC_COMMAND = "python -m simpletrack.server.settings --write <this file>"
@@ -295,6 +295,19 @@ class ServiceSettings(BaseSettings):
     backpressure: Backpressure = Field(
         default=Backpressure.DROP_OLDEST, description="what a full queue does: drop_oldest or block"
     )
+    # Recovered and replayed frames (docs/SERVICE.md, "Recovered frames are kept").
+    catchup_after_s: Seconds = Field(
+        default=0.5,
+        description="a frame arriving this much later after its stamp than its sensor's usual "
+        "delay is a catch-up frame (recovered from a vehicle's cache, replayed): it and the "
+        "frames of its burst behind it are kept beyond queue_size on burst_bytes, never shed",
+    )
+    burst_bytes: Annotated[int, Field(ge=1 << 20)] = Field(
+        default=256 << 20,
+        description="bytes of catch-up frames a member holds beyond queue_size (all workers "
+        "together, payload + 512 B each); past it a catch-up frame is dropped as missed "
+        "(block: waits); 256 MiB holds the 10 s caches of 100 sensors at ~25 KB a frame",
+    )
     congestion_control: Congestion = Field(
         default=Congestion.BLOCK,
         description="Zenoh congestion control of the tracks/errors publishers",
@@ -326,7 +339,8 @@ class ServiceSettings(BaseSettings):
         default=None, description="snapshot directory; restored on start (none: no persistence)"
     )
     snapshot_interval_s: Seconds = Field(
-        default=10.0, description="periodic snapshot interval: a crash loses at most this much"
+        default=5.0,
+        description="periodic snapshot interval: a crash's gap since the last snapshot is replayed from the vehicles' caches at restart, so keep it plus the restart time within the cache (100 frames: 10 s at 10 Hz)",
     )
     group: bool = Field(
         default=True,
@@ -343,6 +357,14 @@ class ServiceSettings(BaseSettings):
     standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
         default=100,
         description="frames per sensor a standby member keeps since the last checkpoint (replayed at a takeover)",
+    )
+    fence_after_s: Seconds = Field(
+        default=5.0,
+        description="a worker that finds itself stopped this long (SIGSTOP, a frozen VM) while in a group publishes nothing from its streams until it asked the group again; keep it below the Zenoh lease (10 s), after which the group takes them over",
+    )
+    fence_hold_s: Seconds = Field(
+        default=1.0,
+        description="after a fence, how long frames wait once the member reaches the group again before it is asked (the group's tokens and tracks come in meanwhile)",
     )
     handoff_timeout_s: Seconds = Field(
         default=1.0,
@@ -375,10 +397,10 @@ class ServiceSettings(BaseSettings):
         default_factory=FusionSettings,
         description="vehicle fusion: which sensors feed one tracker per vehicle",
     )
-    tracks_schema_version: Annotated[int, Field(ge=1, le=TRACK_SCHEMA_VERSION)] = Field(
-        default=TRACK_SCHEMA_VERSION,
-        description="TrackFrame version published: 1 until every reader decodes 2 "
-        "(schemas/README.md, Versioning)",
+    tracks_schema_version: Annotated[int, Field(ge=1, le=TRACK_EPOCH_SCHEMA_VERSION)] = Field(
+        default=TRACK_EPOCH_SCHEMA_VERSION,
+        description="TrackFrame version published: 3 carries the custody epoch; 2 or 1 until "
+        "every reader decodes 3 (schemas/README.md, Versioning)",
     )
     log_format: LogFormat = Field(
         default=LogFormat.JSON, description="json or kv (key=value) lines"

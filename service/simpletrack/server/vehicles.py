@@ -86,6 +86,7 @@ class VehicleState:
     tracked_at: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_FRAMES))
     # After a takeover: messages up to this seq reached planners already (not sent again).
     published_seq: int | None = None
+    epoch: int = 0  # custody epoch (docs/SCALE.md, "Fencing"): on every tracks message
     missed_by_sensor: dict[str, int] = field(default_factory=dict)  # the last ``holes``
     # Per sensor: when its last frame arrived (monotonic) and its recent stamp -> receipt.
     heard_at: dict[str, float] = field(default_factory=dict)
@@ -250,6 +251,7 @@ class VehicleState:
             config_digest=self.digest,
             tracker=blob,
             written_ns=time.time_ns(),
+            epoch=self.epoch,
         )
 
 

@@ -9,7 +9,6 @@ import logging
 import re
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -18,11 +17,27 @@ import zenoh
 from simpletrack.core.config import TrackerConfig
 from simpletrack.core.fusion_config import FusionConfig
 from simpletrack.core.tracker import Tracker
-from simpletrack.server.custody import Custody, Shared, Takeover
+from simpletrack.server.custody import Custody, Shared
+from simpletrack.server.custody_machine import (
+    Action,
+    AnnounceMissed,
+    Ask,
+    Drop,
+    FetchCache,
+    Keep,
+    Limits,
+    NotOwned,
+    RaiseIds,
+    Release,
+    Resend,
+    Resolve,
+    Skip,
+    Stash,
+    Track,
+)
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.fused import FusedFrames
-from simpletrack.server.group import Role
-from simpletrack.server.intake import Dropped, Inbound, Kind, WorkQueue, stamp_of
+from simpletrack.server.intake import BurstBudget, Dropped, Inbound, Kind, WorkQueue
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import Outbox, congestion_control, dropped, missed_notice
@@ -57,9 +72,9 @@ from simpletrack.wire.codec import (
 )
 from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
-from simpletrack.wire.keys import VEHICLE_STREAM, Keys
+from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
-from simpletrack.wire.reasons import ErrorReason
+from simpletrack.wire.reasons import TRACK_EPOCH_SCHEMA_VERSION, ErrorReason
 
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
 NAME_RE = re.compile(NAME_PATTERN)
@@ -89,6 +104,7 @@ class Context:
     fusion: FusionConfig | None = None
     per_sensor_output: bool = False  # fused sensors also tracked on their own keys
     vehicle_frame_id: str = "base_link"
+    burst: BurstBudget | None = None  # the member's bytes for bursts past the queues' bounds
 
     @property
     def vehicle_digest(self) -> str:
@@ -127,20 +143,20 @@ class Worker(threading.Thread):
         self.fused = FusedFrames(self)
         self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance)
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
-        self.custody = Custody(ctx.shared, self.sensors, self.outbox, s.standby_frames)
+        limits = Limits(s.standby_frames, s.fence_after_s, s.fence_hold_s)
+        self.custody = Custody(ctx.shared, self.sensors, self.outbox, limits, ctx.burst)
         self.custody.before_release = self._before_release
-        self.custody.fused_sensors = () if ctx.fusion is None else ctx.fusion.names
+        self.custody.machine.fused_sensors = () if ctx.fusion is None else ctx.fusion.names
         self.drain_deadline: float | None = None
         self.stopped = threading.Event()
         # Held while an item is handled: a member asking for a sensor takes it to release
         # the sensor from its own thread. Never held while waiting on another member.
         self.lock = threading.Lock()
-        # vehicle/sensor -> (covered, published) stamps after a takeover: frames up to the
-        # first are in the state taken over; up to the second, planners have their tracks.
-        self._limits: dict[str, tuple[int | None, int | None]] = {}
-        self._pending: dict[str, deque[Inbound]] = {}  # sensors asked for, their frames
-        self._awaiting_cache: dict[str, Takeover] = {}  # restored, the vehicle's cache asked
-        self._quiet = False
+        self._quiet = False  # tracking a frame planners have tracks of: publish nothing
+        self._superseding: set[str] = set()  # streams whose fence is queued
+        # Since when this member reaches the group (the app sets it from the router watch;
+        # None: a client without its router). A fenced stream waits for it.
+        self.connected_at: float | None = time.monotonic()
         # vehicle/sensor -> causes already logged for it (once per sensor and cause while
         # the sensor is held; forgotten at eviction, cleared whole past _WARNED_CAP).
         self._warned: dict[str, set[Cause]] = {}
@@ -185,6 +201,9 @@ class Worker(threading.Thread):
                 break
             try:
                 with self.lock:
+                    # Before the item: a process stopped past the lease finds itself fenced
+                    # before it tracks (or publishes) anything from its stale state.
+                    self._beat()
                     if isinstance(item, Inbound):
                         if item.kind is Kind.CHECKPOINT:
                             self.custody.on_checkpoint(item)
@@ -215,11 +234,14 @@ class Worker(threading.Thread):
 
     def _settle_pending(self) -> None:
         """At the end, takeovers still waiting for answers finish with what they have."""
-        for t in list(self._awaiting_cache.values()):
-            self._complete(t, [])
-        for key in list(self._pending):
-            vehicle, sensor = key.split("/")
-            self._complete(self.custody.take_over(vehicle, sensor, []), [])
+        for act in self.custody.machine.settle():
+            self._carry([act])
+
+    def _beat(self) -> None:
+        """The custody machine's clock: a stopped process finds itself fenced here, before
+        any of its streams' frames is tracked again."""
+        view = self.custody.view("")
+        self._carry(self.custody.machine.beat(time.monotonic(), view, self.connected_at))
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
@@ -230,7 +252,7 @@ class Worker(threading.Thread):
         for s in gone:
             self.outbox.forget(s.vehicle, s.sensor)
             self._warned.pop(f"{s.vehicle}/{s.sensor}", None)
-            self.custody.settled.discard(f"{s.vehicle}/{s.sensor}")
+            self.custody.machine.gone(f"{s.vehicle}/{s.sensor}")
         self.custody.housekeeping()
         # A standby without any state of a sensor gets it now, not at the next interval.
         self.custody.send_checkpoints(new_standby_only=True)
@@ -245,136 +267,106 @@ class Worker(threading.Thread):
     # ------------------------------------------------------------------ one frame
     def _process(self, item: Inbound) -> None:
         """Track the frames of the streams this member owns (taking a stream over first when
-        it does not hold it yet); keep those it stands by for; ignore the others. A fused
-        sensor's frames are its vehicle's stream's (server/streams.py)."""
+        it does not hold it yet); keep those it stands by for; ignore the others: as the
+        custody machine says. A fused sensor's frames are its vehicle's stream's
+        (server/streams.py)."""
         names = self.ctx.keys.sensor_of(item.key)
         if names is not None and NAME_RE.fullmatch(names[0]) and NAME_RE.fullmatch(names[1]):
-            vehicle, sensor = names
-            key = self.ctx.stream(vehicle, sensor)
-            holder = key.split("/")[1]
-            role = self.custody.role(key)
-            if role is not Role.OWNER:
-                if self.sensors.get(key) is not None:
-                    self.custody.release(vehicle, holder, self.ctx.shared.membership.owner(key))
-                if role is Role.STANDBY:
-                    self.custody.standby.keep(key, item)
-                else:
-                    self.ctx.metrics.not_owned.inc()
-                return
-            if key in self._pending:  # asked for, the answers not in yet: in order after
-                self._wait_for_takeover(key, item)
-                return
-            if key not in self.custody.settled and self.sensors.get(key) is None:
-                self._pending[key] = deque([item])
-                if self.custody.needs_asking():
-                    self._ask(vehicle, holder)
-                else:
-                    self._answered(vehicle, holder, [])
-                return
-            if is_vehicle_stream(key):
-                self.fused.track(item, vehicle, sensor, replayed=key in self._limits)
-                return
-            if key in self._limits and self._after_takeover(key, item):
-                return
+            key = self.ctx.stream(*names)
+            view = self.custody.view(key)
+            self._carry(self.custody.machine.frame(key, item, view, time.monotonic()))
+            return
         self._track(item)
 
-    def _ask(self, vehicle: str, sensor: str) -> None:
-        """Ask the group for a sensor without waiting: its frames wait in ``_pending`` and
+    def _carry(self, acts: list[Action[Inbound]]) -> None:
+        """Carry out the custody machine's actions, in order."""
+        for act in acts:
+            if isinstance(act, Track):
+                self._track_in(act.stream, act.frame, act.publish, act.replayed)
+            elif isinstance(act, Skip | Keep):
+                continue
+            elif isinstance(act, NotOwned):
+                self.ctx.metrics.not_owned.inc()
+            elif isinstance(act, Release):
+                vehicle, holder = act.stream.split("/")
+                if self.sensors.get(act.stream) is not None:
+                    self.custody.release(vehicle, holder, act.to)
+            elif isinstance(act, Ask):
+                self._ask(act.stream)
+            elif isinstance(act, Resolve):
+                self._carry(self.custody.answered(act.stream, []))
+            elif isinstance(act, FetchCache):
+                self._fetch_cache(act.stream)
+            elif isinstance(act, Drop):
+                self._drop(act.frame, act.reason)
+            elif isinstance(act, AnnounceMissed):
+                vehicle, holder = act.stream.split("/")
+                self._announce_missed(vehicle, holder, act.frames)
+            elif isinstance(act, RaiseIds):
+                self.custody.raise_ids(act.stream, act.floor)
+            elif isinstance(act, Stash):
+                self._stash(act.stream)
+            elif isinstance(act, Resend):
+                vehicle, holder = act.stream.split("/")
+                self.outbox.resend(vehicle, holder, act.payload)
+
+    def _track_in(self, stream: str, item: Inbound, publish: bool, replayed: bool) -> None:
+        if is_vehicle_stream(stream):
+            names = self.ctx.keys.sensor_of(item.key)
+            if names is not None:
+                self.fused.track(item, names[0], names[1], replayed=replayed)
+            return
+        if publish:
+            self._track(item)
+            return
+        self._quiet = True
+        try:
+            self._track(item)
+        finally:
+            self._quiet = False
+
+    def supersede(self, stream: str) -> None:
+        """From a Zenoh thread: another member published ``stream`` with a higher epoch."""
+        if stream in self._superseding:
+            return  # one fence per stream is on its way already
+        self._superseding.add(stream)
+
+        def fence() -> None:
+            self._superseding.discard(stream)
+            self._carry(self.custody.machine.superseded(stream, time.monotonic()))
+
+        self.queue.put_control(fence, force=True)
+
+    def _stash(self, stream: str) -> None:
+        """Fenced: a fused vehicle's frames waiting in its window go back to wait for the
+        takeover (unapplied), then the state leaves the registry unpublished."""
+        state = self.sensors.get(stream)
+        if isinstance(state, VehicleState):
+            self.custody.machine.requeue(stream, [w.item for w in state.buffer.flush()])
+            self.fused.forget(stream)
+        self.custody.stash(stream)
+
+    def _ask(self, stream: str) -> None:
+        """Ask the group for a stream without waiting: its frames wait in the machine and
         the answers come back through the queue's control lane."""
+        vehicle, holder = stream.split("/")
 
         def done(answers: list[SensorSnapshot]) -> None:
-            self.queue.put_control(lambda: self._answered(vehicle, sensor, answers), force=True)
+            self.queue.put_control(
+                lambda: self._carry(self.custody.answered(stream, answers)), force=True
+            )
 
-        self.custody.ask(vehicle, sensor, done)
+        self.custody.ask(vehicle, holder, done)
 
-    def _answered(self, vehicle: str, sensor: str, answers: list[SensorSnapshot]) -> None:
-        """The group answered: restore; when the standby's frames leave a gap after the
-        state, ask the vehicle's cache for it before replaying (frames keep waiting)."""
-        key = f"{vehicle}/{sensor}"
-        t = self.custody.take_over(vehicle, sensor, answers, self._pending.get(key, ()))
-        if not t.needs_cache:
-            self._complete(t, [])
-            return
-
-        self._awaiting_cache[key] = t
+    def _fetch_cache(self, stream: str) -> None:
+        vehicle, holder = stream.split("/")
 
         def done(cached: list[Inbound]) -> None:
-            self.queue.put_control(lambda: self._complete(t, cached), force=True)
+            self.queue.put_control(
+                lambda: self._carry(self.custody.cached(stream, cached)), force=True
+            )
 
-        self.custody.fetch_cache(vehicle, sensor, done)
-
-    def _wait_for_takeover(self, key: str, item: Inbound) -> None:
-        frames = self._pending[key]
-        frames.append(item)
-        if len(frames) > self.ctx.settings.standby_frames:
-            lost = frames.popleft()
-            self._drop(lost, ErrorReason.DROPPED_QUEUE_FULL)
-
-    def _complete(self, t: Takeover, cached: list[Inbound]) -> None:
-        """Replay what the state lacks (kept by the standby, or from the vehicle's cache),
-        then the frames that waited for the takeover; publish only past what planners have."""
-        key = f"{t.vehicle}/{t.sensor}"
-        if t.done:
-            return  # finished already (at shutdown, without the cache)
-        t.done = True
-        self._awaiting_cache.pop(key, None)
-        self.custody.complete(t, cached, self._pending.get(key, ()))
-        if t.missed:
-            self._announce_missed(t.vehicle, t.sensor, t.missed)
-        # Kept, cached and waiting frames overlap and interleave: one of each, in order.
-        stamped = sorted(
-            ((stamp_of(f), f) for f in [*t.replay, *self._pending.pop(key, ())]),
-            key=lambda sf: sf[0] or 0,
-        )
-        frames, seen = [], set()
-        for stamp, f in stamped:
-            if stamp is None or (f.key, stamp) not in seen:
-                seen.add((f.key, stamp))
-                frames.append(f)
-        if t.replay:
-            self.ctx.metrics.replayed.inc(len(t.replay))
-        if is_vehicle_stream(key):
-            self._replay_vehicle(t, frames)
-            return
-        self._limits[key] = (t.covered_stamp_ns, t.published_stamp_ns)
-        for f in frames:
-            if not (key in self._limits and self._after_takeover(key, f)):
-                self._track(f)
-        top = max((st for _, st in seen if st is not None), default=None)
-        if top is not None:
-            # A frame both cached and still on its way is in the state now: skip it then.
-            covered, published = self._limits.get(key, (None, t.published_stamp_ns))
-            self._limits[key] = (top if covered is None else max(covered, top), published)
-
-    def _replay_vehicle(self, t: Takeover, frames: list[Inbound]) -> None:
-        """A fused vehicle's frames after the state taken over, through its reorder buffer;
-        messages planners already have (by the vehicle's message seq) are not sent again."""
-        state = self.sensors.get(f"{t.vehicle}/{VEHICLE_STREAM}")
-        if isinstance(state, VehicleState):
-            state.published_seq = t.published_seq
-        for f in frames:
-            names = self.ctx.keys.sensor_of(f.key)
-            if names is not None:
-                self.fused.track(f, names[0], names[1], replayed=True)
-
-    def _after_takeover(self, key: str, item: Inbound) -> bool:
-        """A frame the state taken over already holds is skipped; one planners already have
-        from the member before is tracked without publishing. True: done with it."""
-        covered, published = self._limits[key]
-        stamp = stamp_of(item)
-        if stamp is None:
-            return False
-        if covered is not None and stamp <= covered:
-            return True
-        if published is not None and stamp <= published:
-            self._quiet = True
-            try:
-                self._track(item)
-            finally:
-                self._quiet = False
-            return True
-        del self._limits[key]  # past both: from here on like any frame
-        return False
+        self.custody.fetch_cache(vehicle, holder, done)
 
     def _announce_missed(self, vehicle: str, sensor: str, n: int) -> None:
         state = self.sensors.get(f"{vehicle}/{sensor}")
@@ -454,6 +446,7 @@ class Worker(threading.Thread):
             state = vehicle_state.per_sensor[sensor] = SensorState(
                 vehicle, sensor, self.ctx.new_tracker(), id_base=floor
             )
+        state.epoch = vehicle_state.epoch  # its messages are the vehicle stream's custody's
         now = time.perf_counter()
         self._step_sensor(item, decoded, state, arrival, False, fresh, (now, now))
 
@@ -526,6 +519,7 @@ class Worker(threading.Thread):
         if not self._publishable(item, state, wire, fp, seq, stamp_ns):
             return
         self.sensors.reserve_ids(state)  # durable before any of the frame's ids leaves
+        version = ctx.settings.tracks_schema_version
         payload = encode_track_frame(
             vehicle=vehicle,
             sensor=sensor,
@@ -538,7 +532,8 @@ class Worker(threading.Thread):
             received_ns=item.received_ns,
             published_ns=time.time_ns(),
             tracks=wire,
-            schema_version=ctx.settings.tracks_schema_version,
+            schema_version=version,
+            epoch=state.epoch if version >= TRACK_EPOCH_SCHEMA_VERSION else None,
         )
         if not self._quiet:
             self.outbox.tracks(vehicle, sensor, payload)

@@ -1,0 +1,729 @@
+"""A stream's custody in the group as one pure state machine (docs/SCALE.md).
+
+A stream (server/streams.py: a sensor's own, or a fused vehicle's) is, on one member, in one
+``Phase``; events come in (a frame, the group's answers, the vehicle's cache, a hand-off
+asked, a checkpoint, a beat of the worker's clock, a restart's snapshots) and actions come
+out (track, track without publishing, keep, ask, fetch the cache, release, announce missed,
+stash). The worker and the app carry the actions out (Zenoh, the registry, the trackers);
+this module imports no Zenoh and reads no clock: ``now`` is always passed in. Its table
+tests are ``tests/server/test_custody_machine.py``.
+
+Frames are opaque to it (``F``): ``peek(frame) -> (key, seq, stamp_ns)`` reads what it needs.
+Only the worker's thread calls it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Generic, Protocol, TypeVar
+
+from simpletrack.wire.keys import VEHICLE_STREAM
+from simpletrack.wire.models import SensorSnapshot
+from simpletrack.wire.reasons import ErrorReason
+
+F = TypeVar("F")
+Peek = Callable[[F], tuple[str, int | None, int | None]]  # frame -> (key, seq, stamp_ns)
+
+# A stream released to a member this one cannot see yet (its token is on the way) is not
+# taken back for this long: the views agree well within it.
+RELEASE_GUARD_S = 2.0
+RELEASED_KEPT_S = 60.0
+MAX_STANDBY_STREAMS = 100_000
+_RESTARTED_PUBLISHER = 100_000  # a seq jump this large is a new numbering, not a gap
+EPOCH_TAG_BITS = 16
+
+
+def epoch_tag(instance: str) -> int:
+    """The low bits of every epoch an instance gives: two members that took a stream over
+    from the same state (each side of a partition) are ordered by name, never equal."""
+    digest = hashlib.blake2b(instance.encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "big") & ((1 << EPOCH_TAG_BITS) - 1)
+
+
+def next_epoch(instance: str, *before: int | None) -> int:
+    """A stream's custody epoch when ``instance`` takes it: one takeover more than any epoch
+    it had before (``before``: its state's, the last heard on its key), in the high bits."""
+    count = max((e >> EPOCH_TAG_BITS for e in before if e is not None), default=0)
+    return ((count + 1) << EPOCH_TAG_BITS) | epoch_tag(instance)
+
+
+class Role(Enum):
+    OWNER = "owner"
+    STANDBY = "standby"
+    NONE = "none"
+
+
+class Phase(Enum):
+    UNHELD = "unheld"  # not held here (never, released, or evicted)
+    ASKING = "asking"  # owned, the group asked for its state: frames wait
+    FILLING = "filling"  # state chosen, the vehicle's cache asked for the gap: frames wait
+    CATCHING_UP = "catching_up"  # held; frames up to the state skipped, up to planners' quiet
+    HELD = "held"
+    FENCED = "fenced"  # was held when this process stopped past the lease: frames wait
+
+
+class Source(Enum):
+    """Where a taken-over stream's state came from."""
+
+    HANDOFF = "handoff"  # the holder's exact state
+    FAILOVER = "failover"  # the standby's checkpoint
+    RESTORE = "restore"  # this member's state directory (or its own fenced state)
+    LOST = "lost"  # another member published it and nobody has its state
+    NEW = "new"
+
+
+# ---------------------------------------------------------------------- actions
+@dataclass(frozen=True, slots=True)
+class Track(Generic[F]):
+    """Track the frame; ``publish`` False: planners have its tracks already."""
+
+    stream: str
+    frame: F
+    publish: bool = True
+    replayed: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Skip(Generic[F]):
+    stream: str
+    frame: F  # the state holds it already
+
+
+@dataclass(frozen=True, slots=True)
+class Keep(Generic[F]):
+    stream: str
+    frame: F  # kept as the stream's standby
+
+
+@dataclass(frozen=True, slots=True)
+class NotOwned(Generic[F]):
+    stream: str
+    frame: F
+
+
+@dataclass(frozen=True, slots=True)
+class Drop(Generic[F]):
+    stream: str
+    frame: F
+    reason: ErrorReason
+
+
+@dataclass(frozen=True, slots=True)
+class Ask:
+    stream: str  # ask the group for its state (``answered`` follows)
+
+
+@dataclass(frozen=True, slots=True)
+class Resolve:
+    stream: str  # nobody to ask: ``answered`` with no replies now
+
+
+@dataclass(frozen=True, slots=True)
+class FetchCache:
+    stream: str  # ask the vehicle's cache for the gap (``cached`` follows)
+
+
+@dataclass(frozen=True, slots=True)
+class Release:
+    stream: str
+    to: str  # snapshot it, forget it here (``released`` records the snapshot)
+
+
+@dataclass(frozen=True, slots=True)
+class Stash:
+    stream: str  # fenced: snapshot it as this member's local state, forget it, publish nothing
+
+
+@dataclass(frozen=True, slots=True)
+class Resend:
+    """Publish a stream's last message again, as it was (its epoch the old one)."""
+
+    stream: str
+    payload: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class AnnounceMissed:
+    stream: str
+    frames: int
+
+
+@dataclass(frozen=True, slots=True)
+class RaiseIds:
+    """Tracks may have been born in frames nobody has: new ids start at or above ``floor``
+    and at least an id block above the state's."""
+
+    stream: str
+    floor: int
+
+
+Action = (
+    Track[F] | Skip[F] | Keep[F] | NotOwned[F] | Drop[F] | Ask | Resolve | FetchCache | Release
+    | Stash | Resend | AnnounceMissed | RaiseIds
+)  # fmt: skip
+
+
+# ---------------------------------------------------------------------- inputs
+@dataclass(frozen=True, slots=True)
+class View:
+    """The group as the member sees it when an event comes."""
+
+    me: str
+    members: frozenset[str]
+    role: Role
+    owner: str
+
+
+@dataclass(frozen=True, slots=True)
+class Heard:
+    """The latest tracks message heard on a stream's key, from any member."""
+
+    stamp_ns: int
+    next_id: int  # above every id heard on the key
+    seq: int | None = None  # a fused vehicle's message seq (its own counter)
+    epoch: int | None = None
+
+
+class Coverage(Protocol[F]):  # type: ignore[misc]
+    """What a taken-over state already holds (a fused vehicle's is per sensor)."""
+
+    def covers(self, frame: F) -> bool: ...
+
+    def holes(self, frames: Iterable[F]) -> int: ...
+
+
+@dataclass(slots=True)
+class SensorCoverage(Generic[F]):
+    """A sensor's state: frames up to its last stamp are in it."""
+
+    last_seq: int | None
+    last_stamp_ns: int | None
+    peek: Peek[F]
+
+    def covers(self, frame: F) -> bool:
+        stamp = self.peek(frame)[2]
+        return self.last_stamp_ns is not None and stamp is not None and stamp <= self.last_stamp_ns
+
+    def holes(self, frames: Iterable[F]) -> int:
+        """Seqs between the state's last and the newest frame that none of them has."""
+        if self.last_seq is None:
+            return 0
+        seqs = {s for s in (self.peek(f)[1] for f in frames) if s is not None}
+        top = max(seqs, default=self.last_seq)
+        if top - self.last_seq > _RESTARTED_PUBLISHER:
+            return 0
+        return sum(1 for q in range(self.last_seq + 1, top + 1) if q not in seqs)
+
+    def exact(self, frames: Iterable[F]) -> bool:
+        """The frames after the state (by stamp) continue its seqs without a hole and
+        without a new numbering (a restarted publisher): every frame tracked after the state
+        is among them, so the replay gives the ids an uninterrupted run gave."""
+        if self.last_seq is None:
+            return False
+        seqs = {q for f in frames if not self.covers(f) and (q := self.peek(f)[1]) is not None}
+        if not seqs:
+            return True  # nothing after the state: nothing to differ
+        if min(seqs) <= self.last_seq or max(seqs) - self.last_seq > _RESTARTED_PUBLISHER:
+            return False
+        return seqs == set(range(self.last_seq + 1, max(seqs) + 1))
+
+
+@dataclass(slots=True)
+class Takeover(Generic[F]):
+    """How a stream comes to this member."""
+
+    stream: str
+    source: Source
+    snapshot: SensorSnapshot | None
+    heard: Heard | None
+    kept: list[F]  # the standby's frames (and a vehicle's sensors' own streams')
+    coverage: Coverage[F] | None = None
+    replay: list[F] = field(default_factory=list)
+    missed: int = 0
+    from_cache: int = 0
+    exact_ids: bool = True  # the replay covers every seq since the state
+    resend: bytes | None = None  # its own stash's last message, sent again first
+
+    @property
+    def covered_stamp_ns(self) -> int | None:
+        return None if self.snapshot is None else self.snapshot.last_stamp_ns
+
+    def epoch(self, instance: str) -> int:
+        """The stream's custody epoch from this takeover on (docs/SCALE.md, "Fencing")."""
+        mine = None if self.snapshot is None else self.snapshot.epoch
+        return next_epoch(instance, mine, None if self.heard is None else self.heard.epoch)
+
+    @property
+    def published_stamp_ns(self) -> int | None:
+        """Planners have tracks up to it. The holder of a hand-off published all it heard; a
+        member killed mid-put may have written its last tracks to some links only (Zenoh
+        writes one link after another), so after a failover the last frame heard is
+        published again and ``TrackSubscriber`` drops the repeat where it arrived before."""
+        if self.heard is None:
+            return None
+        return self.heard.stamp_ns if self.source is Source.HANDOFF else self.heard.stamp_ns - 1
+
+    @property
+    def published_seq(self) -> int | None:
+        """A fused vehicle's message seq planners have up to (as ``published_stamp_ns``)."""
+        if self.heard is None or self.heard.seq is None:
+            return None
+        return self.heard.seq if self.source is Source.HANDOFF else self.heard.seq - 1
+
+
+@dataclass(slots=True)
+class _Stream(Generic[F]):
+    phase: Phase = Phase.UNHELD
+    waiting: deque[F] = field(default_factory=deque)  # frames behind a takeover
+    takeover: Takeover[F] | None = None
+    limits: tuple[int | None, int | None] = (None, None)  # (covered, published) stamps
+    fenced_at: float | None = None
+    borrowed: int = 0  # bytes of waiting frames kept on the budget
+
+
+@dataclass(slots=True)
+class _Standby(Generic[F]):
+    checkpoint: SensorSnapshot | None = None
+    frames: deque[tuple[int | None, F]] = field(default_factory=deque)  # (stamp, frame)
+
+
+@dataclass(frozen=True, slots=True)
+class Released:
+    snapshot: SensorSnapshot
+    to: str
+    at: float
+
+
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """The machine's bounds (the service's settings)."""
+
+    standby_frames: int = 100  # frames kept per stream stood by for, and waiting per takeover
+    fence_after_s: float = 5.0  # a beat later than this after the last: the process was stopped
+    fence_hold_s: float = 1.0  # after a fence, how long frames wait before the group is asked
+
+
+class Budget(Protocol):
+    """Bytes a member may hold beyond its bounds (server/intake.py ``BurstBudget``)."""
+
+    def take(self, n: int) -> bool: ...
+
+    def give(self, n: int) -> None: ...
+
+
+class CustodyMachine(Generic[F]):
+    def __init__(
+        self,
+        peek: Peek[F],
+        limits: Limits | None = None,
+        budget: Budget | None = None,
+        size: Callable[[F], int] = lambda frame: 0,
+    ) -> None:
+        """``budget`` and ``size``: frames waiting on a takeover past ``standby_frames`` are
+        kept while the member's byte budget has room (a burst after a fence or an outage),
+        and dropped, announced, only past it."""
+        self.peek = peek
+        self.limits = limits or Limits()
+        self.budget, self.size = budget, size
+        self._streams: dict[str, _Stream[F]] = {}
+        self._standby: dict[str, _Standby[F]] = {}
+        self.released: dict[str, Released] = {}
+        # Snapshots of this member's own (state directory at a restart, or stashed at a
+        # fence): a takeover's candidates when no holder answers.
+        self.local: dict[str, SensorSnapshot] = {}
+        self.fused_sensors: tuple[str, ...] = ()  # the sensors a vehicle's stream fuses
+        self._beat: float | None = None
+        self._resend: dict[str, bytes] = {}  # a stashed state's last message
+        self.fences = 0
+
+    # ------------------------------------------------------------------ queries
+    def phase(self, stream: str) -> Phase:
+        s = self._streams.get(stream)
+        return Phase.UNHELD if s is None else s.phase
+
+    def held(self) -> list[str]:
+        return [k for k, s in self._streams.items() if s.phase in _HELD]
+
+    def waiting(self, stream: str) -> list[F]:
+        s = self._streams.get(stream)
+        return [] if s is None else list(s.waiting)
+
+    def busy(self) -> list[str]:
+        """Streams whose takeover is under way (asked, or filling from the cache)."""
+        return [k for k, s in self._streams.items() if s.phase in (Phase.ASKING, Phase.FILLING)]
+
+    def role(self, stream: str, view: View, now: float) -> Role:
+        """The view's role, but a stream just released to a member this one cannot see yet
+        is stood by for (its frames kept in case the asker never shows up)."""
+        if view.role is Role.OWNER:
+            rel = self.released.get(stream)
+            if rel is not None and rel.to not in view.members and now - rel.at < RELEASE_GUARD_S:
+                return Role.STANDBY
+        return view.role
+
+    # ------------------------------------------------------------------ events
+    def frame(self, stream: str, frame: F, view: View, now: float) -> list[Action[F]]:
+        """A detection frame of the stream."""
+        s = self._streams.get(stream)
+        phase = Phase.UNHELD if s is None else s.phase
+        role = self.role(stream, view, now)
+        if role is not Role.OWNER:
+            acts: list[Action[F]] = []
+            if phase in _HELD:
+                acts += self._release(stream, view.owner)
+            if role is Role.STANDBY:
+                self._keep(stream, frame)
+                return [*acts, Keep(stream, frame)]
+            return [*acts, NotOwned(stream, frame)]
+        if s is None:
+            s = self._streams[stream] = _Stream()
+        if phase in (Phase.ASKING, Phase.FILLING, Phase.FENCED):
+            return self._wait(stream, s, frame)
+        if phase is Phase.UNHELD:
+            s.phase = Phase.ASKING
+            s.waiting = deque([frame])
+            alone = len(view.members) <= 1 and not self.released
+            return [Resolve(stream) if alone else Ask(stream)]
+        if phase is Phase.CATCHING_UP:
+            return [self._after_takeover(stream, s, frame)]
+        return [Track(stream, frame)]
+
+    def answered(
+        self,
+        stream: str,
+        replies: Sequence[SensorSnapshot],
+        heard: Callable[[str], Heard | None],
+    ) -> Takeover[F]:
+        """The group answered (``replies``: the holder's state, if any). The state taken is
+        the holder's, else the newest of the standby checkpoint and this member's own;
+        ``heard(stream)``: the last tracks heard on a key. The caller adopts the snapshot,
+        then calls ``adopted``."""
+        s = self._streams.setdefault(stream, _Stream())
+        self.released.pop(stream, None)
+        checkpoint, kept = self._take_standby(stream)
+        vehicle, name = stream.split("/")
+        if name == VEHICLE_STREAM:
+            # Kept as the sensors' own streams before fusion was on in the group (a rolling
+            # upgrade's last old member just left): those no member answered on the
+            # sensor's own key are the vehicle's now.
+            for sensor in self.fused_sensors:
+                answered = heard(f"{vehicle}/{sensor}")
+                upto = None if answered is None else answered.stamp_ns
+                kept += [
+                    f for f in self._take_standby(f"{vehicle}/{sensor}")[1] if self._after(f, upto)
+                ]
+        snap, source = None, Source.NEW
+        if replies:
+            snap, source = max(replies, key=lambda r: r.written_ns), Source.HANDOFF
+        else:
+            local = self.local.pop(stream, None)
+            candidates = [(c, Source.FAILOVER) for c in (checkpoint,) if c is not None]
+            candidates += [(c, Source.RESTORE) for c in (local,) if c is not None]
+            if candidates:
+                snap, source = max(candidates, key=lambda c: c[0].written_ns)
+        resend = self._resend.pop(stream, None)
+        last = heard(stream)
+        if source is Source.NEW and last is not None:
+            # Another member published this stream's tracks and nobody has its state (it
+            # died before its first checkpoint, or with its standby): tracks start afresh,
+            # their ids above every one heard.
+            source = Source.LOST
+        t = Takeover(stream, source, snap, last, kept)
+        if source is Source.RESTORE and resend is not None and snap is not None:
+            t.resend = resend  # its own stash taken back: nobody else published since
+        s.takeover = t
+        return t
+
+    def adopted(self, stream: str, coverage: Coverage[F] | None) -> list[Action[F]]:
+        """The state is in the registry (``coverage``: what it holds; None: a fresh start).
+        The frames it lacks are those kept and waiting; a hole among them is asked of the
+        vehicle's cache (restore, failover and hand-off alike) before the replay."""
+        s = self._streams[stream]
+        t = s.takeover
+        assert t is not None, "adopted before answered"
+        t.coverage = coverage
+        if coverage is None:
+            t.replay = list(t.kept)
+            return self._complete(stream, s, t)
+        t.replay = [f for f in t.kept if not coverage.covers(f)]
+        t.missed = coverage.holes([*t.replay, *s.waiting])
+        if t.missed:
+            s.phase = Phase.FILLING
+            return [FetchCache(stream)]
+        return self._complete(stream, s, t)
+
+    def cached(self, stream: str, frames: Sequence[F]) -> list[Action[F]]:
+        """The vehicle's cache answered (the frames it still keeps, any order)."""
+        s = self._streams.get(stream)
+        if s is None or s.phase is not Phase.FILLING or s.takeover is None:
+            return []  # finished already (at shutdown, without the cache)
+        t = s.takeover
+        cov = t.coverage
+        have = {self._id(f) for f in [*t.replay, *s.waiting]}
+        extra = [
+            f for f in frames if (cov is None or not cov.covers(f)) and self._id(f) not in have
+        ]
+        t.from_cache = len(extra)
+        t.replay += extra
+        if cov is not None:
+            t.missed = cov.holes([*t.replay, *s.waiting])
+        return self._complete(stream, s, t)
+
+    def settle(self) -> list[Action[F]]:
+        """At the end: takeovers still waiting finish with what they have."""
+        acts: list[Action[F]] = []
+        for stream, s in list(self._streams.items()):
+            if s.phase is Phase.FILLING and s.takeover is not None:
+                acts += self._complete(stream, s, s.takeover)
+            elif s.phase in (Phase.ASKING, Phase.FENCED):
+                acts.append(Resolve(stream))
+        return acts
+
+    def release_asked(self, stream: str, to: str, held: bool) -> list[Action[F]]:
+        """A member that owns the stream in its view asks for it."""
+        if not held:
+            return []
+        return self._release(stream, to)
+
+    def released_as(self, stream: str, snap: SensorSnapshot, to: str, now: float) -> None:
+        """The worker released the stream with this state (asked again: the same answer)."""
+        self.released[stream] = Released(snap, to, now)
+
+    def checkpoint(self, stream: str, snap: SensorSnapshot) -> None:
+        """The owner's state, for a stream this member stands by for."""
+        if self.phase(stream) in _HELD:
+            return
+        held = self._standby_of(stream)
+        if held is None:
+            return
+        old = held.checkpoint
+        if old is not None and old.written_ns > snap.written_ns:
+            return  # an older one overtaken on the way
+        held.checkpoint = snap
+        last = snap.last_stamp_ns
+        if last is not None:
+            while held.frames and (held.frames[0][0] or 0) <= last:
+                held.frames.popleft()
+
+    def gone(self, stream: str) -> None:
+        """Evicted from the registry (silent): the next frame starts it again."""
+        s = self._streams.get(stream)
+        if s is not None and s.phase in _HELD:
+            del self._streams[stream]
+
+    def restart(self, snapshots: Iterable[SensorSnapshot]) -> None:
+        """This member's state directory at start: each is a takeover's candidate, used when
+        no member holds the stream (alone: always), the gap since it replayed first."""
+        for snap in snapshots:
+            key = f"{snap.vehicle}/{snap.sensor}"
+            old = self.local.get(key)
+            if old is None or old.written_ns < snap.written_ns:
+                self.local[key] = snap
+
+    def beat(self, now: float, view: View, connected_at: float | None = None) -> list[Action[F]]:
+        """The worker's clock, at every turn of its loop. A beat later than ``fence_after_s``
+        after the one before means this process was stopped (SIGSTOP, a frozen VM): the
+        group may have taken its streams over, so it publishes nothing from them until it
+        asked again (``Stash`` each held stream; its frames wait). Alone, nobody could have
+        taken them: nothing is fenced. ``connected_at``: since when the member reaches the
+        group again (a client: its router back; None: not now); frames of a fenced stream
+        wait until then plus ``fence_hold_s`` (the group's tokens and answers are in)."""
+        last, self._beat = self._beat, now
+        acts: list[Action[F]] = []
+        if last is not None and now - last > self.limits.fence_after_s and len(view.members) > 1:
+            self.fences += 1
+            for stream, s in self._streams.items():
+                if s.phase in _HELD:
+                    acts.append(Stash(stream))
+                    s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
+            return acts
+        for stream, s in self._streams.items():
+            if s.phase is not Phase.FENCED or s.fenced_at is None or connected_at is None:
+                continue
+            if now - max(s.fenced_at, connected_at) < self.limits.fence_hold_s:
+                continue
+            if s.waiting:
+                s.phase = Phase.ASKING
+                acts.append(Resolve(stream) if len(view.members) <= 1 else Ask(stream))
+            else:
+                s.phase = Phase.UNHELD  # its next frame asks
+        return acts
+
+    def superseded(self, stream: str, now: float) -> list[Action[F]]:
+        """Another member published the stream with a higher epoch (it took the stream over
+        while this one could not see it: a partition that healed, a pause): this member's
+        state is stale. Fenced as after a stop: stashed, its frames wait, then it asks."""
+        s = self._streams.get(stream)
+        if s is None or s.phase not in _HELD:
+            return []
+        s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
+        return [Stash(stream)]
+
+    def requeue(self, stream: str, frames: Sequence[F]) -> None:
+        """Frames a fenced stream had taken in but not applied (a fused vehicle's window):
+        they wait again, before those that came since."""
+        s = self._streams.get(stream)
+        if s is not None:
+            s.waiting.extendleft(reversed(frames))
+
+    def stashed(self, stream: str, snap: SensorSnapshot, last: bytes | None = None) -> None:
+        """The state a fence took from the registry: this member's own candidate, with the
+        last message it published from it (``last``), which the stop may have cut off on
+        its way: taken back, the state sends it again first (at least once)."""
+        self.local[stream] = snap
+        if last is not None:
+            self._resend[stream] = last
+
+    def housekeeping(self, now: float, role: Callable[[str], Role]) -> None:
+        for key in [k for k, r in self.released.items() if now - r.at > RELEASED_KEPT_S]:
+            del self.released[key]
+        for key in [k for k in self._standby if role(k) is Role.NONE]:
+            del self._standby[key]
+        for key in [
+            k for k, s in self._streams.items() if s.phase is Phase.UNHELD and not s.waiting
+        ]:
+            del self._streams[key]
+
+    def standby_count(self) -> int:
+        return len(self._standby)
+
+    def standby_streams(self) -> list[str]:
+        return list(self._standby)
+
+    # ------------------------------------------------------------------ inside
+    def _wait(self, stream: str, s: _Stream[F], frame: F) -> list[Action[F]]:
+        s.waiting.append(frame)
+        if len(s.waiting) <= self.limits.standby_frames:
+            return []
+        n = self.size(frame)
+        if self.budget is not None and self.budget.take(n):
+            s.borrowed += n
+            return []
+        return [Drop(stream, s.waiting.popleft(), ErrorReason.DROPPED_QUEUE_FULL)]
+
+    def _settled(self, s: _Stream[F]) -> list[F]:
+        """The frames that waited, handed back with the bytes they borrowed."""
+        waiting = list(s.waiting)
+        s.waiting.clear()
+        if s.borrowed and self.budget is not None:
+            self.budget.give(s.borrowed)
+        s.borrowed = 0
+        return waiting
+
+    def _release(self, stream: str, to: str) -> list[Action[F]]:
+        s = self._streams.pop(stream, None)
+        if s is None or s.phase not in _HELD:
+            return []
+        return [Release(stream, to)]
+
+    def _complete(self, stream: str, s: _Stream[F], t: Takeover[F]) -> list[Action[F]]:
+        """Replay what the state lacks, then the frames that waited, one of each in stamp
+        order; frames planners have tracks of are tracked without publishing."""
+        acts: list[Action[F]] = []
+        waiting = self._settled(s)
+        s.takeover = None
+        cov = t.coverage
+        if isinstance(cov, SensorCoverage):
+            t.exact_ids = cov.exact([*t.replay, *waiting])
+        else:
+            t.exact_ids = t.missed == 0
+        if t.resend is not None:
+            acts.append(Resend(stream, t.resend))
+        if t.missed:
+            acts.append(AnnounceMissed(stream, t.missed))
+        if t.snapshot is not None and (t.missed or not t.exact_ids):
+            floor = 0 if t.heard is None else t.heard.next_id
+            acts.append(RaiseIds(stream, floor))
+        stamped = sorted(
+            ((self.peek(f)[2], f) for f in [*t.replay, *waiting]), key=lambda sf: sf[0] or 0
+        )
+        frames: list[F] = []
+        seen: set[tuple[str, int]] = set()
+        for stamp, f in stamped:
+            if stamp is None:
+                frames.append(f)
+                continue
+            fid = (self.peek(f)[0], stamp)
+            if fid not in seen:
+                seen.add(fid)
+                frames.append(f)
+        s.phase = Phase.HELD
+        if stream.endswith(f"/{VEHICLE_STREAM}"):
+            # A fused vehicle's frames go through its reorder buffer, which skips what the
+            # state holds and sends no message planners have (by its message seq).
+            acts += [Track(stream, f, replayed=True) for f in frames]
+            return acts
+        s.limits = (t.covered_stamp_ns, t.published_stamp_ns)
+        s.phase = Phase.CATCHING_UP
+        for f in frames:
+            acts.append(
+                self._after_takeover(stream, s, f)
+                if s.phase is Phase.CATCHING_UP
+                else Track(stream, f)
+            )
+        top = max((st for _, st in seen), default=None)
+        if top is not None and s.phase is Phase.CATCHING_UP:
+            # A frame both cached and still on its way is in the state now: skip it then.
+            covered, published = s.limits
+            s.limits = (top if covered is None else max(covered, top), published)
+        elif top is not None:
+            s.phase, s.limits = Phase.CATCHING_UP, (top, t.published_stamp_ns)
+        return acts
+
+    def _after_takeover(self, stream: str, s: _Stream[F], frame: F) -> Action[F]:
+        covered, published = s.limits
+        stamp = self.peek(frame)[2]
+        if stamp is None:
+            return Track(stream, frame)
+        if covered is not None and stamp <= covered:
+            return Skip(stream, frame)
+        if published is not None and stamp <= published:
+            return Track(stream, frame, publish=False)
+        s.phase, s.limits = Phase.HELD, (None, None)  # past both: like any frame from here
+        return Track(stream, frame)
+
+    def _standby_of(self, stream: str) -> _Standby[F] | None:
+        held = self._standby.get(stream)
+        if held is None:
+            if len(self._standby) >= MAX_STANDBY_STREAMS:
+                return None
+            held = self._standby[stream] = _Standby()
+        return held
+
+    def _keep(self, stream: str, frame: F) -> None:
+        held = self._standby_of(stream)
+        if held is None:
+            return
+        held.frames.append((self.peek(frame)[2], frame))
+        if len(held.frames) > self.limits.standby_frames:
+            held.frames.popleft()  # a takeover finds the gap and asks the vehicle's cache
+
+    def _take_standby(self, stream: str) -> tuple[SensorSnapshot | None, list[F]]:
+        held = self._standby.pop(stream, None)
+        if held is None:
+            return None, []
+        return held.checkpoint, [f for _, f in held.frames]
+
+    def _after(self, frame: F, stamp_ns: int | None) -> bool:
+        if stamp_ns is None:
+            return True
+        stamp = self.peek(frame)[2]
+        return stamp is None or stamp > stamp_ns
+
+    def _id(self, frame: F) -> tuple[str, int | None]:
+        key, _, stamp = self.peek(frame)
+        return key, stamp
+
+
+_HELD = (Phase.HELD, Phase.CATCHING_UP)
+
+__all__ = [
+    "Action", "AnnounceMissed", "Ask", "Budget", "Coverage", "CustodyMachine", "Drop", "FetchCache",
+    "Heard", "Keep", "Limits", "NotOwned", "Phase", "RaiseIds", "Release", "Released",
+    "Resend", "Resolve", "Role", "SensorCoverage", "Skip", "Source", "Stash", "Takeover", "Track", "View",
+    "epoch_tag", "next_epoch",
+]  # fmt: skip

@@ -1,0 +1,444 @@
+"""The custody machine's table: each guarantee docs/SCALE.md and docs/SERVICE.md state about a
+stream changing hands, as events in and actions out (no Zenoh, no clock, no data).
+
+Guarantees, one table test (or a group) each:
+ G1  an owned, held stream's frame is tracked and published; not owned: kept by its standby,
+     ignored (counted) by the others; held but no longer owned: released to the owner.
+ G2  owned, not held: the first frame asks the group (alone with nothing released: no
+     question); every frame waits behind the answer and is tracked after it, in order.
+ G3  the state taken over is the holder's (hand-off), else the newest of the standby's
+     checkpoint and this member's own snapshot, else new; tracks heard without a state:
+     ``lost`` (new ids above every id heard).
+ G4  replay: frames the state holds are skipped; frames planners have tracks of are
+     tracked without publishing, except after a failover the last one heard (at least
+     once: the dead member may have been killed halfway through that put).
+ G5  kept, cached and waiting frames overlap: each frame is tracked once, in stamp order.
+ G6  a gap after the state is asked of the vehicle's cache (restore, failover, hand-off);
+     filled: ids exactly as an uninterrupted run (no floor raised); not filled: the hole is
+     announced as missed and new ids start above every id heard and reserved.
+ G7  a lone instance restarted from its snapshot replays the gap since it first (the
+     crash costs planners nothing when the vehicle's cache covers it).
+ G8  bounded memory: a standby keeps at most ``standby_frames`` per stream, trimmed by each
+     checkpoint (an older checkpoint overtaken on the way is ignored); a takeover's waiting
+     frames beyond it are kept on the member's byte budget (``burst_bytes``, shared with the
+     queues), given back when they are tracked; past it, dropped oldest first, announced.
+ G9  a stream released to a member this one does not see yet is stood by for (its frames
+     kept) for ``RELEASE_GUARD_S``; asked again, the same state.
+ G10 fencing: a member stopped past ``fence_after_s`` in a group publishes nothing from its
+     streams: each is stashed, its frames wait until the member reaches the group again plus
+     ``fence_hold_s``, then the group is asked; the holder's state wins, its own stash is used
+     only when nobody holds the stream (and its last message is sent again: the stop may
+     have cut it off). A higher epoch heard on a held stream fences it the same way. Alone,
+     nothing is fenced. Epochs grow by one takeover each, ordered by instance on a tie.
+ G11 a fused vehicle's stream replays through its reorder buffer (marked replayed).
+ G12 an evicted stream asks again at its next frame; a cache answer after the takeover
+     finished is ignored.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from simpletrack.server.custody_machine import (
+    RELEASE_GUARD_S,
+    AnnounceMissed,
+    Ask,
+    CustodyMachine,
+    Drop,
+    FetchCache,
+    Heard,
+    Keep,
+    Limits,
+    NotOwned,
+    Phase,
+    RaiseIds,
+    Release,
+    Resend,
+    Resolve,
+    Role,
+    SensorCoverage,
+    Source,
+    Stash,
+    Takeover,
+    Track,
+    View,
+    epoch_tag,
+    next_epoch,
+)
+from simpletrack.wire.models import SensorSnapshot
+from simpletrack.wire.reasons import ErrorReason
+
+Frame = tuple[str, int, int]  # (detection key, seq, stamp_ns)
+S = "car/lidar"
+KEY = "fleet/car/lidar/detections"
+ME, OTHER = "a", "b"
+
+
+def f(seq: int, key: str = KEY) -> Frame:
+    return (key, seq, seq * 100)
+
+
+def peek(fr: Frame) -> tuple[str, int | None, int | None]:
+    return fr
+
+
+def machine(**limits: float) -> CustodyMachine[Frame]:
+    return CustodyMachine(peek, Limits(**limits))  # type: ignore[arg-type]
+
+
+def view(role: Role = Role.OWNER, members: tuple[str, ...] = (ME, OTHER)) -> View:
+    owner = ME if role is Role.OWNER else OTHER
+    return View(ME, frozenset(members), role, owner)
+
+
+def snap(last_seq: int | None, written_ns: int = 1, stream: str = S) -> SensorSnapshot:
+    vehicle, sensor = stream.split("/")
+    return SensorSnapshot(
+        schema_version=1, vehicle=vehicle, sensor=sensor, config_digest="d",
+        written_ns=written_ns, last_seq=last_seq,
+        last_stamp_ns=None if last_seq is None else last_seq * 100,
+        id_base=0, id_next=5, frames=0, tracker=b"t",
+    )  # fmt: skip
+
+
+def nobody(_: str) -> Heard | None:
+    return None
+
+
+def heard(stamp_seq: int, next_id: int = 9) -> object:
+    return lambda _: Heard(stamp_seq * 100, next_id)
+
+
+def tracked(acts: list[object]) -> list[tuple[int, bool]]:
+    """(seq, published) of each Track."""
+    return [(a.frame[1], a.publish) for a in acts if isinstance(a, Track)]
+
+
+def take(
+    m: CustodyMachine[Frame],
+    replies: list[SensorSnapshot],
+    state: SensorSnapshot | None,
+    heard_fn: object = nobody,
+    stream: str = S,
+) -> list[object]:
+    """What the worker does after an answer: adopt the state the machine chose."""
+    t = m.answered(stream, replies, heard_fn)  # type: ignore[arg-type]
+    assert (t.snapshot is None) == (state is None) or state is None
+    cov = (
+        None
+        if t.snapshot is None
+        else SensorCoverage(t.snapshot.last_seq, t.snapshot.last_stamp_ns, peek)
+    )
+    return list(m.adopted(stream, cov))
+
+
+def held(m: CustodyMachine[Frame], upto: int = 1) -> None:
+    """Hold S (a new stream) with frames 1..upto tracked."""
+    assert m.frame(S, f(1), view(), 0.0) == [Ask(S)]
+    take(m, [], None)
+    for q in range(2, upto + 1):
+        assert tracked(m.frame(S, f(q), view(), 0.0)) == [(q, True)]
+
+
+# ---------------------------------------------------------------------- G1
+@pytest.mark.parametrize(
+    ("role", "expect"),
+    [(Role.STANDBY, Keep), (Role.NONE, NotOwned)],
+)
+def test_g1_frames_of_streams_not_owned_are_kept_or_ignored(role: Role, expect: type) -> None:
+    m = machine()
+    acts = m.frame(S, f(1), view(role), 0.0)
+    assert [type(a) for a in acts] == [expect]
+    assert m.phase(S) is Phase.UNHELD
+
+
+def test_g1_held_stream_tracked_and_released_when_no_longer_owned() -> None:
+    m = machine()
+    held(m, 3)
+    assert m.phase(S) is Phase.HELD
+    acts = m.frame(S, f(4), view(Role.STANDBY), 0.0)
+    assert acts[0] == Release(S, OTHER) and isinstance(acts[1], Keep)
+    assert m.phase(S) is Phase.UNHELD
+
+
+# ---------------------------------------------------------------------- G2
+def test_g2_first_frame_asks_and_frames_wait_in_order() -> None:
+    m = machine()
+    assert m.frame(S, f(1), view(), 0.0) == [Ask(S)]
+    assert m.frame(S, f(2), view(), 0.0) == []
+    assert m.frame(S, f(3), view(), 0.0) == []
+    assert m.phase(S) is Phase.ASKING
+    assert tracked(take(m, [], None)) == [(1, True), (2, True), (3, True)]
+    assert m.phase(S) in (Phase.HELD, Phase.CATCHING_UP)
+
+
+def test_g2_alone_nothing_to_ask() -> None:
+    m = machine()
+    assert m.frame(S, f(1), view(members=(ME,)), 0.0) == [Resolve(S)]
+
+
+# ---------------------------------------------------------------------- G3
+def test_g3_handoff_beats_checkpoint_and_own_snapshot() -> None:
+    m = machine()
+    m.frame(S, f(1), view(Role.STANDBY), 0.0)
+    m.checkpoint(S, snap(5, written_ns=30))
+    m.restart([snap(6, written_ns=40)])
+    m.frame(S, f(9), view(), 0.0)
+    t = m.answered(S, [snap(8, written_ns=10)], nobody)
+    assert t.source is Source.HANDOFF and t.snapshot is not None and t.snapshot.last_seq == 8
+
+
+@pytest.mark.parametrize(
+    ("checkpoint_ns", "local_ns", "source", "seq"),
+    [(30, 20, Source.FAILOVER, 5), (20, 30, Source.RESTORE, 6)],
+)
+def test_g3_no_answer_takes_the_newest_of_checkpoint_and_own(
+    checkpoint_ns: int, local_ns: int, source: Source, seq: int
+) -> None:
+    m = machine()
+    m.checkpoint(S, snap(5, written_ns=checkpoint_ns))
+    m.restart([snap(6, written_ns=local_ns)])
+    m.frame(S, f(9), view(), 0.0)
+    t = m.answered(S, [], nobody)
+    assert t.source is source and t.snapshot is not None and t.snapshot.last_seq == seq
+
+
+def test_g3_tracks_heard_but_no_state_is_lost() -> None:
+    m = machine()
+    m.frame(S, f(9), view(), 0.0)
+    t = m.answered(S, [], heard(8, next_id=42))  # type: ignore[arg-type]
+    assert t.source is Source.LOST and t.heard is not None and t.heard.next_id == 42
+
+
+# ---------------------------------------------------------------------- G4
+@pytest.mark.parametrize(
+    ("replies", "expect"),
+    [
+        # hand-off: planners have up to 6 from the holder: 6 is not published again
+        ("handoff", [(6, False), (7, True), (8, True)]),
+        # failover: the last heard (6) is published again, at least once
+        ("failover", [(6, True), (7, True), (8, True)]),
+    ],
+)
+def test_g4_replay_skips_the_state_and_quiets_what_planners_have(
+    replies: str, expect: list[tuple[int, bool]]
+) -> None:
+    m = machine()
+    for q in range(3, 9):
+        m.frame(S, f(q), view(Role.STANDBY), 0.0)
+    state = snap(5, written_ns=10)
+    if replies == "failover":
+        m.checkpoint(S, state)
+    first = m.frame(S, f(9), view(), 0.0)
+    assert first == [Ask(S)]
+    acts = take(m, [state] if replies == "handoff" else [], state, heard(6))
+    assert tracked(acts) == [*expect, (9, True)]
+    assert not any(isinstance(a, (AnnounceMissed, RaiseIds)) for a in acts)
+    # live frames after the replay: published
+    assert tracked(m.frame(S, f(10), view(), 0.0)) == [(10, True)]
+
+
+# ---------------------------------------------------------------------- G5
+def test_g5_overlapping_kept_cached_and_waiting_frames_tracked_once_in_order() -> None:
+    m = machine()
+    for q in (6, 8, 7):
+        m.frame(S, f(q), view(Role.STANDBY), 0.0)
+    m.checkpoint(S, snap(3, written_ns=5))
+    m.frame(S, f(9), view(), 0.0)
+    m.frame(S, f(8), view(), 0.0)  # also waiting
+    assert take(m, [], snap(3)) == [FetchCache(S)]  # 4, 5 missing
+    acts = m.cached(S, [f(q) for q in range(2, 10)])
+    assert tracked(acts) == [(q, True) for q in range(4, 10)]
+
+
+# ---------------------------------------------------------------------- G6 / G7
+def test_g6_g7_restart_replays_the_gap_from_the_cache_with_exact_ids() -> None:
+    m = machine()
+    m.restart([snap(10)])
+    assert m.frame(S, f(20), view(members=(ME,)), 0.0) == [Resolve(S)]
+    assert take(m, [], snap(10)) == [FetchCache(S)]
+    acts = m.cached(S, [f(q) for q in range(1, 21)])  # the cache's last 20 frames
+    assert tracked(acts) == [(q, True) for q in range(11, 21)]
+    assert not any(isinstance(a, (AnnounceMissed, RaiseIds)) for a in acts)
+
+
+def test_g6_a_hole_nobody_kept_is_announced_and_raises_the_ids() -> None:
+    m = machine()
+    m.restart([snap(10)])
+    m.frame(S, f(20), view(members=(ME,)), 0.0)
+    assert take(m, [], snap(10), heard(9, next_id=77)) == [FetchCache(S)]
+    acts = m.cached(S, [f(q) for q in range(15, 20)])  # 11..14 gone from the cache
+    assert AnnounceMissed(S, 4) in acts and RaiseIds(S, 77) in acts
+    assert tracked(acts) == [(q, True) for q in range(15, 21)]
+    # the floor is raised before any frame after the hole is tracked
+    assert acts.index(RaiseIds(S, 77)) < next(i for i, a in enumerate(acts) if isinstance(a, Track))
+
+
+def test_g6_a_restarted_publisher_is_not_exact() -> None:
+    cov = SensorCoverage(10, 1000, peek)
+    assert cov.exact([f(11), f(12)]) and cov.exact([])
+    assert cov.exact([f(9), f(10), f(11)])  # copies of frames in the state: covered
+    assert not cov.exact([f(11), f(13)])
+    assert not cov.exact([("k", 1, 2000)])  # a new numbering: ids not provably the same
+
+
+def test_g6_a_handoff_with_copies_of_frames_in_the_state_keeps_exact_ids() -> None:
+    m = machine()
+    m.frame(S, f(9), view(), 0.0)
+    m.frame(S, f(10), view(), 0.0)
+    m.frame(S, f(11), view(), 0.0)
+    acts = take(m, [snap(10)], snap(10), heard(10))
+    assert not any(isinstance(a, (AnnounceMissed, RaiseIds)) for a in acts)
+    assert tracked(acts) == [(11, True)]
+
+
+# ---------------------------------------------------------------------- G8
+def test_g8_standby_bounded_and_trimmed_by_checkpoints() -> None:
+    m = machine(standby_frames=3)
+    for q in range(1, 8):
+        m.frame(S, f(q), view(Role.STANDBY), 0.0)
+    m.checkpoint(S, snap(5, written_ns=10))
+    m.checkpoint(S, snap(2, written_ns=5))  # older, overtaken on the way: ignored
+    t = m.answered(S, [], nobody)
+    assert t.snapshot is not None and t.snapshot.last_seq == 5
+    assert [fr[1] for fr in t.kept] == [6, 7]
+
+
+def test_g8_waiting_frames_bounded_oldest_dropped_and_announced() -> None:
+    m = machine(standby_frames=2)
+    m.frame(S, f(1), view(), 0.0)
+    m.frame(S, f(2), view(), 0.0)
+    assert m.frame(S, f(3), view(), 0.0) == [Drop(S, f(1), ErrorReason.DROPPED_QUEUE_FULL)]
+
+
+class _Budget:
+    def __init__(self, limit: int) -> None:
+        self.limit, self.used = limit, 0
+
+    def take(self, n: int) -> bool:
+        if self.used + n > self.limit:
+            return False
+        self.used += n
+        return True
+
+    def give(self, n: int) -> None:
+        self.used -= n
+
+
+def test_g8_waiting_frames_past_the_bound_kept_on_the_budget_then_given_back() -> None:
+    budget = _Budget(limit=30)
+    m = CustodyMachine(peek, Limits(standby_frames=2), budget, size=lambda fr: 10)
+    acts = [a for q in range(1, 7) for a in m.frame(S, f(q), view(), 0.0)]
+    # 2 free, 3 on the budget (30 bytes), the 6th drops the oldest, announced
+    assert acts[1:] == [Drop(S, f(1), ErrorReason.DROPPED_QUEUE_FULL)]
+    assert budget.used == 30
+    assert tracked(take(m, [], None)) == [(q, True) for q in range(2, 7)]
+    assert budget.used == 0
+
+
+# ---------------------------------------------------------------------- G9
+def test_g9_released_to_an_unseen_member_is_stood_by_for() -> None:
+    m = machine()
+    held(m)
+    assert m.release_asked(S, "c", held=True) == [Release(S, "c")]
+    m.released_as(S, snap(1), "c", 100.0)
+    assert isinstance(m.frame(S, f(2), view(), 100.5)[0], Keep)  # "c" not in the view yet
+    assert m.frame(S, f(3), view(), 100.0 + RELEASE_GUARD_S + 0.1) == [Ask(S)]
+
+
+# ---------------------------------------------------------------------- G10
+def test_g10_a_stopped_member_publishes_nothing_until_it_asked_again() -> None:
+    m = machine(fence_after_s=2.0, fence_hold_s=1.0)
+    held(m, 3)
+    assert m.beat(10.0, view()) == []
+    assert m.beat(22.0, view()) == [Stash(S)]  # stopped 12 s
+    m.stashed(S, snap(3, written_ns=50))
+    assert m.frame(S, f(4), view(), 22.0) == []  # waits: nothing tracked from stale state
+    assert m.beat(22.5, view(), connected_at=None) == []  # not back in the group yet
+    assert m.beat(22.8, view(), connected_at=22.6) == []  # back, tokens still coming
+    assert m.beat(23.7, view(), connected_at=22.6) == [Ask(S)]
+    # the member that took over answers: its state, not the stale one
+    t = m.answered(S, [snap(40, written_ns=60)], nobody)
+    assert t.source is Source.HANDOFF and t.snapshot is not None and t.snapshot.last_seq == 40
+
+
+def test_g10_own_stash_used_when_nobody_took_over_its_last_message_sent_again() -> None:
+    m = machine()
+    held(m, 3)
+    m.beat(0.0, view())
+    assert m.beat(6.0, view()) == [Stash(S)]  # past the default fence_after_s (5 s)
+    m.stashed(S, snap(3, written_ns=50), b"tracks of 3")
+    m.frame(S, f(4), view(), 6.0)
+    assert m.beat(7.5, view(), connected_at=0.0) == [Ask(S)]
+    acts = take(m, [], snap(3))
+    # The stop may have cut frame 3's message off on its way: sent again, then frame 4.
+    assert acts[0] == Resend(S, b"tracks of 3")
+    assert tracked(acts) == [(4, True)]
+
+
+def test_g10_a_taker_s_state_wins_and_the_stash_is_not_sent_again() -> None:
+    m = machine()
+    held(m, 3)
+    m.beat(0.0, view())
+    m.beat(6.0, view())
+    m.stashed(S, snap(3, written_ns=50), b"tracks of 3")
+    m.frame(S, f(4), view(), 6.0)
+    m.beat(7.5, view(), connected_at=0.0)
+    acts = take(m, [snap(3, written_ns=60)], snap(3))
+    assert not any(isinstance(a, Resend) for a in acts)
+
+
+def test_g10_alone_nothing_is_fenced() -> None:
+    m = machine()
+    held(m)
+    m.beat(0.0, view(members=(ME,)))
+    assert m.beat(60.0, view(members=(ME,))) == []
+    assert m.phase(S) in (Phase.HELD, Phase.CATCHING_UP)
+
+
+# ---------------------------------------------------------------------- G11
+def test_g11_a_fused_vehicle_replays_through_its_buffer() -> None:
+    m = machine()
+    v = "car/@vehicle"
+    m.frame(v, f(1, "fleet/car/cam/detections"), view(), 0.0)
+    t = m.answered(v, [], nobody)
+    acts = m.adopted(v, None)
+    assert t.source is Source.NEW
+    assert [(type(a), a.replayed) for a in acts if isinstance(a, Track)] == [(Track, True)]
+    assert [a.replayed for a in m.frame(v, f(2), view(), 0.0) if isinstance(a, Track)] == [False]
+
+
+# ---------------------------------------------------------------------- G12
+def test_g12_evicted_asks_again_and_late_cache_ignored() -> None:
+    m = machine()
+    held(m)
+    m.gone(S)
+    assert m.frame(S, f(5), view(), 0.0) == [Ask(S)]
+    assert m.cached(S, [f(4)]) == []  # not filling: nothing to do
+
+
+def test_g10_a_higher_epoch_heard_fences_the_holder() -> None:
+    m = machine()
+    held(m, 3)
+    assert m.superseded(S, 10.0) == [Stash(S)]
+    assert m.phase(S) is Phase.FENCED
+    assert m.frame(S, f(4), view(), 10.0) == []
+    assert m.beat(11.5, view(), connected_at=0.0) == [Ask(S)]
+    assert m.superseded("car/other", 10.0) == []  # not held: nothing to fence
+
+
+def test_g10_epochs_grow_by_one_takeover_and_differ_by_instance() -> None:
+    first = next_epoch("a")
+    assert first >> 16 == 1 and first & 0xFFFF == epoch_tag("a")
+    again = next_epoch("b", first, None)
+    assert again >> 16 == 2 and again > first
+    # Two members taking over from the same state (a partition): never equal, both higher.
+    one, two = next_epoch("a", again), next_epoch("c", again)
+    assert one != two and min(one, two) > again
+    t = m_takeover(snap_epoch=again, heard_epoch=first)
+    assert t.epoch("a") >> 16 == 3
+
+
+def m_takeover(snap_epoch: int, heard_epoch: int) -> Takeover[Frame]:
+    state = SensorSnapshot(**{**snap(5).model_dump(), "epoch": snap_epoch})
+    return Takeover(S, Source.FAILOVER, state, Heard(0, 0, None, heard_epoch), [])
