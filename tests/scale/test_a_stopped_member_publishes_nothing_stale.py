@@ -28,7 +28,7 @@ from tests.scale.fleet import (
     planner_session,
     same_tracks,
 )
-from tests.service_helpers import wait_for
+from tests.service_helpers import metric, wait_for
 
 SENSORS = 30
 FRAMES = 230  # 23 s: 4 s before the stop, 12 s stopped, 7 s after
@@ -112,6 +112,8 @@ def test_a_member_stopped_past_the_lease_publishes_nothing_stale(tmp_path: Path)
         assert [x for x in logs if x.get("event") == "sensor_fenced"], "nothing fenced"
         back = [x["source"] for x in logs if x.get("event") == "sensor_taken_over"]
         assert back.count("handoff") == len(theirs), back
+        fences = metric(victim.metrics(), "simpletrack_fences_total", why="stopped")
+        assert fences == len(theirs), fences
     finally:
         if victim is not None:
             os.kill(victim.proc.pid, signal.SIGCONT)

@@ -388,6 +388,15 @@ def test_g10_a_taker_s_state_wins_and_the_stash_is_not_sent_again() -> None:
     assert not any(isinstance(a, Resend) for a in acts)
 
 
+def test_g10_fenced_even_when_the_others_tokens_went_before_the_first_beat() -> None:
+    """A resumed client's link was closed while it was stopped: the others' tokens may be
+    gone from its view before its worker beats. It was in a group: fenced all the same."""
+    m = machine()
+    held(m, 3)
+    m.beat(0.0, view())
+    assert m.beat(12.0, view(members=(ME,))) == [Stash(S)]
+
+
 def test_g10_alone_nothing_is_fenced() -> None:
     m = machine()
     held(m)

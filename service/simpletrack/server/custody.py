@@ -23,6 +23,7 @@ from simpletrack.server.custody_machine import (
     FetchCache,
     Heard,
     Limits,
+    Released,
     Role,
     SensorCoverage,
     Source,
@@ -70,7 +71,7 @@ class Shared:
             self.counts[what] += 1
 
 
-Frames: TypeAlias = list[Action[Inbound]]
+Actions: TypeAlias = list[Action[Inbound]]
 
 
 def peek(item: Inbound) -> tuple[str, int | None, int | None]:
@@ -98,8 +99,9 @@ class Custody:
         self._taking: dict[str, Takeover[Inbound]] = {}
 
     @property
-    def released(self) -> dict[str, object]:
-        return self.machine.released  # type: ignore[return-value]
+    def released(self) -> dict[str, Released]:
+        """Streams this member gave away lately (their answer, if asked again)."""
+        return self.machine.released
 
     def view(self, stream: str) -> View:
         m = self.shared.membership
@@ -122,7 +124,7 @@ class Custody:
             self.machine.checkpoint(stream, snap)
 
     # ------------------------------------------------------------------ taking over
-    def answered(self, stream: str, replies: Sequence[SensorSnapshot]) -> Frames:
+    def answered(self, stream: str, replies: Sequence[SensorSnapshot]) -> Actions:
         """The group answered: the machine picks the state, the registry adopts it (its ids
         exact: the floors apply only if the replay leaves a hole), the machine says what
         to replay (or to ask the vehicle's cache first)."""
@@ -148,10 +150,10 @@ class Custody:
         self._taking[stream] = t
         return self._done(stream, self.machine.adopted(stream, coverage))
 
-    def cached(self, stream: str, frames: Sequence[Inbound]) -> Frames:
+    def cached(self, stream: str, frames: Sequence[Inbound]) -> Actions:
         return self._done(stream, self.machine.cached(stream, frames))
 
-    def _done(self, stream: str, acts: Frames) -> Frames:
+    def _done(self, stream: str, acts: Actions) -> Actions:
         """A takeover complete (no cache to wait for): accounted and logged."""
         if any(isinstance(a, FetchCache) for a in acts):
             return acts

@@ -337,6 +337,7 @@ class CustodyMachine(Generic[F]):
         self.local: dict[str, SensorSnapshot] = {}
         self.fused_sensors: tuple[str, ...] = ()  # the sensors a vehicle's stream fuses
         self._beat: float | None = None
+        self._members = 1  # members in the view at the last beat
         self._resend: dict[str, bytes] = {}  # a stashed state's last message
         self.fences = 0
 
@@ -533,8 +534,12 @@ class CustodyMachine(Generic[F]):
         group again (a client: its router back; None: not now); frames of a fenced stream
         wait until then plus ``fence_hold_s`` (the group's tokens and answers are in)."""
         last, self._beat = self._beat, now
+        # The group as it was before the gap: a resumed process may hear the others' tokens
+        # go (its link closed while it was stopped) before its first beat.
+        grouped = max(self._members, len(view.members)) > 1
+        self._members = len(view.members)
         acts: list[Action[F]] = []
-        if last is not None and now - last > self.limits.fence_after_s and len(view.members) > 1:
+        if last is not None and now - last > self.limits.fence_after_s and grouped:
             self.fences += 1
             for stream, s in self._streams.items():
                 if s.phase in _HELD:
@@ -547,8 +552,10 @@ class CustodyMachine(Generic[F]):
             if now - max(s.fenced_at, connected_at) < self.limits.fence_hold_s:
                 continue
             if s.waiting:
+                # Asked even when the view shows nobody else yet: this member was in a group
+                # when it stopped, and a member that took the stream over must answer.
                 s.phase = Phase.ASKING
-                acts.append(Resolve(stream) if len(view.members) <= 1 else Ask(stream))
+                acts.append(Ask(stream))
             else:
                 s.phase = Phase.UNHELD  # its next frame asks
         return acts

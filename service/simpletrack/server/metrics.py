@@ -190,6 +190,13 @@ class Metrics:
             "Sensors taken over from a member gone without handing them over (from its checkpoint)",
             registry=r,
         )
+        self.fences = Counter(
+            "simpletrack_fences",
+            "Streams this member stopped publishing from its own state (why: stopped, its "
+            "process stopped past fence_after_s; superseded, a higher epoch heard)",
+            ["why"],
+            registry=r,
+        )
         self.replayed = Counter(
             "simpletrack_replayed_frames",
             "Frames tracked again at a takeover, after the state it started from",

@@ -241,7 +241,11 @@ class Worker(threading.Thread):
         """The custody machine's clock: a stopped process finds itself fenced here, before
         any of its streams' frames is tracked again."""
         view = self.custody.view("")
-        self._carry(self.custody.machine.beat(time.monotonic(), view, self.connected_at))
+        acts = self.custody.machine.beat(time.monotonic(), view, self.connected_at)
+        stashed = sum(isinstance(a, Stash) for a in acts)
+        if stashed:
+            self.ctx.metrics.fences.labels(why="stopped").inc(stashed)
+        self._carry(acts)
 
     def _housekeeping(self) -> None:
         now = time.monotonic()
@@ -333,7 +337,10 @@ class Worker(threading.Thread):
 
         def fence() -> None:
             self._superseding.discard(stream)
-            self._carry(self.custody.machine.superseded(stream, time.monotonic()))
+            acts = self.custody.machine.superseded(stream, time.monotonic())
+            if acts:
+                self.ctx.metrics.fences.labels(why="superseded").inc()
+            self._carry(acts)
 
         self.queue.put_control(fence, force=True)
 
