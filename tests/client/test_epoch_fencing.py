@@ -166,6 +166,19 @@ def test_a_new_holders_repeat_is_a_repeat_and_raises_the_epoch() -> None:
     assert f.highest_epoch(k) == 4
 
 
+def test_a_new_holders_replay_after_a_partition_is_delivered_once() -> None:
+    """Both sides of a partition answer; the taker (higher epoch) replays from the last frame
+    it heard, far more frames back than the repeat window: each frame once all the same."""
+    f = StreamFilter(recent_frames=4)
+    k = "fleet/car-1/lidar/tracks"
+    assert all(f.admit(k, q, q * 100, 1) is DELIVER for q in range(40))  # the old holder
+    replay = [f.admit(k, q, q * 100, 2) for q in range(10, 45)]  # the taker, from seq 10
+    assert replay == [REPEAT] * 30 + [DELIVER] * 5
+    assert f.admit(k, 45, 4500, 1) is STALE  # the old holder, still on its side
+    # Caught up: a stamp going back (a rebooted vehicle) is a new frame again.
+    assert f.admit(k, 0, 50, 2) is DELIVER
+
+
 def test_no_epoch_is_judged_by_the_repeat_rule_only_and_keeps_the_highest() -> None:
     f = StreamFilter()
     k = "fleet/car-1/@vehicle/tracks"

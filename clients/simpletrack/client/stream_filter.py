@@ -25,6 +25,11 @@ class Verdict(Enum):
 class _Stream:
     recent: deque[tuple[int, int]]
     epoch: int | None = None  # the highest seen; None until a message carries one
+    last_stamp: int | None = None  # of the last message delivered
+    # A new holder replays from the last frame it heard, which may be many frames behind
+    # (a partition lasts a lease at least): its messages up to the last stamp delivered
+    # from the holder before are repeats, whatever the window holds. None: caught up.
+    handover: int | None = None
 
 
 class StreamFilter:
@@ -58,13 +63,18 @@ class StreamFilter:
                 if stream.epoch is not None and epoch < stream.epoch:
                     self.stale += 1
                     return Verdict.STALE
+                if stream.epoch is not None and epoch > stream.epoch:
+                    stream.handover = stream.last_stamp
                 # Raised even by a repeat: a new holder may send again what the old one sent,
                 # and is the holder all the same.
                 stream.epoch = epoch
-            if (seq, stamp_ns) in stream.recent:
+            caught_up = stream.handover is None or stamp_ns > stream.handover
+            if (seq, stamp_ns) in stream.recent or (epoch is not None and not caught_up):
                 self.repeats += 1
                 return Verdict.REPEAT
+            stream.handover = None
             stream.recent.append((seq, stamp_ns))
+            stream.last_stamp = stamp_ns
             return Verdict.DELIVER
 
     def highest_epoch(self, key: str) -> int | None:

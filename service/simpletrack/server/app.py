@@ -428,6 +428,10 @@ class Service:
             if held is not None:
                 self._fence_if_superseded(worker, stream, held.epoch, sample.payload.to_bytes())
                 return None
+        # Not held here, but maybe published here (before a fence or a release): what this
+        # member sent is no sign of what planners have from the others.
+        if self._own_instance in sample.payload.to_bytes():
+            return None
         return names
 
     def _fence_if_superseded(self, worker: Worker, stream: str, epoch: int, payload: bytes) -> None:

@@ -114,14 +114,26 @@ class Custody:
     def role(self, stream: str) -> Role:
         return self.machine.role(stream, self.view(stream), time.monotonic())
 
-    def on_checkpoint(self, item: Inbound) -> None:
+    def on_checkpoint(self, item: Inbound) -> Actions:
+        """A state sent to this member: a checkpoint of a stream it stands by for; or, for a
+        stream it holds, a state with a higher epoch, pushed by a member that took the stream
+        over while the two could not see each other (a healed partition): this member's
+        state is stale, and it is fenced (it asks for the stream, and gets that state)."""
         snap = decode_message(item.payload, SensorSnapshot, _SNAP_LIMITS)
         if isinstance(snap, Rejection):
             log.warning("checkpoint_invalid", key=item.key, reason=snap.reason.value)
-            return
+            return []
         stream = f"{snap.vehicle}/{snap.sensor}"
-        if self.registry.get(stream) is None:
+        held = self.registry.get(stream)
+        if held is None:
             self.machine.checkpoint(stream, snap)
+            return []
+        if snap.epoch is not None and snap.epoch > held.epoch:
+            acts = self.machine.superseded(stream, time.monotonic())
+            if acts:
+                self.shared.metrics.fences.labels(why="superseded").inc()
+            return acts
+        return []
 
     # ------------------------------------------------------------------ taking over
     def answered(self, stream: str, replies: Sequence[SensorSnapshot]) -> Actions:
@@ -266,9 +278,14 @@ class Custody:
             on_done([])
 
     # ------------------------------------------------------------------ giving away
-    def release(self, vehicle: str, sensor: str, to: str) -> SensorSnapshot | None:
+    def release(
+        self, vehicle: str, sensor: str, to: str, push: bool = False
+    ) -> SensorSnapshot | None:
         """Give the stream up to ``to`` (a member that owns it in its view): its exact
-        state, and this member tracks it no more. Asked again, the same state."""
+        state, and this member tracks it no more. Asked again, the same state. ``push``
+        (released unasked: ``to`` may hold an older state of it, from before a partition
+        healed): the state also goes to ``to`` as a checkpoint, whose higher epoch fences
+        that older state."""
         key = f"{vehicle}/{sensor}"
         state = self.registry.get(key)
         if state is None:
@@ -285,6 +302,8 @@ class Custody:
         self.shared.metrics.handoffs.labels(direction="out").inc()
         self.shared.count("handoffs_out")
         log.info("sensor_handed_off", vehicle=vehicle, sensor=sensor, to=to, seq=snap.last_seq)
+        if push:
+            self._put_checkpoint(to, vehicle, sensor, snap)
         return snap
 
     def stash(self, stream: str) -> SensorSnapshot | None:
@@ -308,7 +327,7 @@ class Custody:
             if self.role(key) is not Role.OWNER:
                 vehicle, sensor = key.split("/")
                 owner = self.shared.membership.owner(key)
-                self.release(vehicle, sensor, owner)
+                self.release(vehicle, sensor, owner, push=True)
 
     # ------------------------------------------------------------------ checkpoints
     def send_checkpoints(self, final: bool = False, new_standby_only: bool = False) -> int:
@@ -326,22 +345,29 @@ class Custody:
             first = last is None or last[0] != standby  # this standby has no state of it
             if not (final or first or (last != mark and not new_standby_only)):
                 continue
-            snap = s.snapshot(self.registry.digest)
-            try:
-                sh.session.put(
-                    sh.keys.checkpoint(standby, s.vehicle, s.sensor),
-                    encode(snap),
-                    encoding=MSGPACK,
-                    congestion_control=zenoh.CongestionControl.BLOCK,
-                )
-            except zenoh.ZError as e:
-                log.warning("checkpoint_failed", vehicle=s.vehicle, sensor=s.sensor, error=str(e))
+            if not self._put_checkpoint(
+                standby, s.vehicle, s.sensor, s.snapshot(self.registry.digest)
+            ):
                 continue
             s.checkpoint_mark = mark
             sent += 1
         if sent:
             sh.metrics.checkpoints_sent.inc(sent)
         return sent
+
+    def _put_checkpoint(self, to: str, vehicle: str, sensor: str, snap: SensorSnapshot) -> bool:
+        sh = self.shared
+        try:
+            sh.session.put(
+                sh.keys.checkpoint(to, vehicle, sensor),
+                encode(snap),
+                encoding=MSGPACK,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+        except zenoh.ZError as e:
+            log.warning("checkpoint_failed", vehicle=vehicle, sensor=sensor, error=str(e))
+            return False
+        return True
 
     def housekeeping(self) -> None:
         self.machine.housekeeping(time.monotonic(), self.shared.membership.role)

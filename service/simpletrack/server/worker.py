@@ -206,7 +206,7 @@ class Worker(threading.Thread):
                     self._beat()
                     if isinstance(item, Inbound):
                         if item.kind is Kind.CHECKPOINT:
-                            self.custody.on_checkpoint(item)
+                            self._carry(self.custody.on_checkpoint(item))
                         elif (
                             self.drain_deadline is not None
                             and time.monotonic() > self.drain_deadline
@@ -294,7 +294,7 @@ class Worker(threading.Thread):
             elif isinstance(act, Release):
                 vehicle, holder = act.stream.split("/")
                 if self.sensors.get(act.stream) is not None:
-                    self.custody.release(vehicle, holder, act.to)
+                    self.custody.release(vehicle, holder, act.to, push=True)
             elif isinstance(act, Ask):
                 self._ask(act.stream)
             elif isinstance(act, Resolve):
