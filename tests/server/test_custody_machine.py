@@ -376,6 +376,19 @@ def test_g10_own_stash_used_when_nobody_took_over_its_last_message_sent_again() 
     assert tracked(acts) == [(4, True)]
 
 
+def test_g10_the_stash_is_not_sent_again_after_a_higher_epoch_was_heard() -> None:
+    m = machine()
+    held(m, 3)
+    m.beat(0.0, view())
+    m.beat(6.0, view())
+    stash = SensorSnapshot(**{**snap(3, written_ns=50).model_dump(), "epoch": 1 << 16})
+    m.stashed(S, stash, b"tracks of 3")
+    m.frame(S, f(4), view(), 6.0)
+    m.beat(7.5, view(), connected_at=0.0)
+    t = m.answered(S, [], lambda _: Heard(300, 9, None, 2 << 16))
+    assert t.source is Source.RESTORE and t.resend is None
+
+
 def test_g10_a_taker_s_state_wins_and_the_stash_is_not_sent_again() -> None:
     m = machine()
     held(m, 3)

@@ -435,7 +435,12 @@ class CustodyMachine(Generic[F]):
             source = Source.LOST
         t = Takeover(stream, source, snap, last, kept)
         if source is Source.RESTORE and resend is not None and snap is not None:
-            t.resend = resend  # its own stash taken back: nobody else published since
+            # Its own stash taken back: sent again unless another member published the
+            # stream with a higher epoch meanwhile (readers drop the old message then; that
+            # member republished from the last one it heard).
+            newer = last is not None and last.epoch is not None and last.epoch > (snap.epoch or 0)
+            if not newer:
+                t.resend = resend
         s.takeover = t
         return t
 
