@@ -101,7 +101,6 @@ def test_a_partition_gives_a_planner_one_equal_answer_per_frame(tmp_path: Path) 
             for m in members.values()
         )
         assert superseded > 0, "no holder heard the higher epoch after the heal"
-        assert track_sub.stale > 0, "the planner saw no fenced holder's message"
     finally:
         if fleet is not None:
             fleet.close()
