@@ -104,8 +104,16 @@ class Custody:
         return self.machine.released
 
     def view(self, stream: str) -> View:
+        """The group as seen for ``stream``; its owner is ranked only when it is another
+        member (every frame comes here: the owner's own frames pay no hashing)."""
         m = self.shared.membership
-        return View(m.me, m.members, m.role(stream), m.owner(stream))
+        role = m.role(stream)
+        return View(m.me, m.members, role, m.me if role is Role.OWNER else m.owner(stream))
+
+    def group_view(self) -> View:
+        """The members alone (the worker's beat asks nothing of any stream)."""
+        m = self.shared.membership
+        return View(m.me, m.members, Role.OWNER, m.me)
 
     def heard(self, stream: str) -> Heard | None:
         with self.shared.lock:

@@ -240,7 +240,7 @@ class Worker(threading.Thread):
     def _beat(self) -> None:
         """The custody machine's clock: a stopped process finds itself fenced here, before
         any of its streams' frames is tracked again."""
-        view = self.custody.view("")
+        view = self.custody.group_view()
         acts = self.custody.machine.beat(time.monotonic(), view, self.connected_at)
         stashed = sum(isinstance(a, Stash) for a in acts)
         if stashed:
