@@ -265,7 +265,12 @@ class Worker(threading.Thread):
             self.custody.release_unowned()
             self.custody.send_checkpoints()
         if now >= self._next_snapshot:
-            self._next_snapshot = now + self.ctx.settings.snapshot_interval_s
+            # On a fixed grid from the worker's start: the workers' snapshots stay in step
+            # instead of drifting apart by each one's lateness.
+            interval = self.ctx.settings.snapshot_interval_s
+            self._next_snapshot += interval
+            if self._next_snapshot <= now:  # a worker stalled for a whole interval
+                self._next_snapshot = now + interval
             self.sensors.snapshot_dirty()
 
     # ------------------------------------------------------------------ one frame
