@@ -5,7 +5,10 @@
 #include <cstdint>
 #include <cstring>
 #include <functional>
+#include <optional>
+#include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "check.hpp"
@@ -140,6 +143,75 @@ void a_vehicle_frame_round_trips() {
   CHECK(!wire::decode_track_frame(b).ok());  // not a sensor's TrackFrame
 }
 
+void a_vehicle_frame_is_walked_by_track_and_sensor() {
+  const auto back = wire::decode_vehicle_track_frame(wire::encode(fused()));
+  CHECK(back.ok());
+  if (!back.ok()) return;
+  const wire::VehicleTrackFrame& f = back.value();
+  CHECK(f.count() == 2);
+  CHECK(f.existence(0) == 1.0 && f.existence(1) == 0.25);
+  using Contributors = std::vector<std::pair<std::string, std::uint64_t>>;
+  CHECK(f.contributors(0) == (Contributors{{"lidar", 2000}, {"radar", 1950}}));
+  CHECK(f.contributors(1) == (Contributors{{"lidar", 2000}}));
+  CHECK(f.condition("radar") == wire::SensorCondition::extrinsic);
+  CHECK(f.condition("lidar") == wire::SensorCondition::ok);
+  CHECK(!f.condition("camera"));
+  bool threw = false;
+  try {
+    (void)f.existence(2);
+  } catch (const std::out_of_range&) {
+    threw = true;
+  }
+  CHECK(threw);
+}
+
+// The cases of the Python StreamFilter's tests (tests/client/test_epoch_fencing.py).
+void the_stream_filter_drops_repeats_and_fenced_holders() {
+  using simpletrack::Verdict;
+  const std::string k = "fleet/car-1/@vehicle/tracks";
+  simpletrack::StreamFilter f;
+  CHECK(f.admit(k, 0, 100, 1) == Verdict::deliver);
+  CHECK(f.admit(k, 1, 200, 2) == Verdict::deliver);
+  CHECK(f.admit(k, 2, 300, 1) == Verdict::stale);  // a fenced holder, whatever its seq
+  CHECK(f.admit(k, 1, 200, 2) == Verdict::repeat);  // same epoch, same (seq, stamp)
+  CHECK(f.admit(k, 1, 250, 2) == Verdict::deliver);  // same epoch, a new stamp
+  CHECK(f.admit(k, 0, 900, 2) == Verdict::deliver);  // a rebooted vehicle's seq 0 again
+  CHECK(f.stale() == 1 && f.repeats() == 1 && f.highest_epoch(k) == 2u);
+  CHECK(f.admit("fleet/car-1/lidar/tracks", 1, 200, 1) == Verdict::deliver);  // its own stream
+
+  simpletrack::StreamFilter n;  // no epoch: the repeat rule only, the highest kept
+  CHECK(n.admit(k, 0, 100, std::nullopt) == Verdict::deliver && !n.highest_epoch(k));
+  CHECK(n.admit(k, 1, 200, 6) == Verdict::deliver);
+  CHECK(n.admit(k, 2, 300, std::nullopt) == Verdict::deliver);
+  CHECK(n.admit(k, 2, 300, std::nullopt) == Verdict::repeat);
+  CHECK(n.admit(k, 3, 400, 0) == Verdict::stale);  // epoch 0 is an epoch, lower than 6
+
+  simpletrack::StreamFilter t;  // a new holder's repeat raises the epoch all the same
+  CHECK(t.admit(k, 7, 700, 3) == Verdict::deliver);
+  CHECK(t.admit(k, 7, 700, 4) == Verdict::repeat);
+  CHECK(t.admit(k, 8, 800, 3) == Verdict::stale && t.highest_epoch(k) == 4u);
+
+  // After a partition the taker replays from far back: each frame once all the same.
+  simpletrack::StreamFilter p(4);
+  bool all = true;
+  for (std::uint64_t q = 0; q < 40; ++q) all = all && p.admit(k, q, q * 100, 1) == Verdict::deliver;
+  CHECK(all);
+  std::vector<Verdict> replay;
+  for (std::uint64_t q = 10; q < 45; ++q) replay.push_back(p.admit(k, q, q * 100, 2));
+  std::vector<Verdict> want(30, Verdict::repeat);
+  want.insert(want.end(), 5, Verdict::deliver);
+  CHECK(replay == want);
+  CHECK(p.admit(k, 45, 4500, 1) == Verdict::stale);
+  CHECK(p.admit(k, 0, 50, 2) == Verdict::deliver);  // caught up: a stamp going back is new
+
+  simpletrack::StreamFilter b(2, 2);  // bounded: a third stream forgets the first two
+  CHECK(b.admit("a", 0, 0, 5) == Verdict::deliver && b.admit("b", 0, 0, 5) == Verdict::deliver);
+  CHECK(b.admit("c", 0, 0, 5) == Verdict::deliver && !b.highest_epoch("a"));
+  CHECK(b.admit("a", 1, 1, 1) == Verdict::deliver);
+  CHECK(b.admit("c", 1, 1, 5) == Verdict::deliver && b.admit("c", 2, 2, 5) == Verdict::deliver);
+  CHECK(b.admit("c", 0, 0, 5) == Verdict::deliver);  // out of the window of the 2 newest
+}
+
 wire::Rejection refusal(const Bytes& b) {
   const auto r = wire::decode_vehicle_track_frame(b);
   CHECK_MSG(!r.ok(), "accepted");
@@ -241,6 +313,8 @@ void the_fusion_reasons() {
 int main() {
   an_extrinsic_makes_version_2();
   a_vehicle_frame_round_trips();
+  a_vehicle_frame_is_walked_by_track_and_sensor();
+  the_stream_filter_drops_repeats_and_fenced_holders();
   a_vehicle_frame_breaking_its_rules_is_refused();
   the_vehicle_encoder_refuses_what_the_decoder_would();
   a_vehicle_frame_with_an_epoch_is_version_2();

@@ -4,7 +4,9 @@
 //! - [`wire`]: the messages of schemas/README.md and their msgpack codec, a vehicle's fused
 //!   tracks (`VehicleTrackFrame`) included.
 //! - [`DetectionPublisher`]: one per vehicle sensor (an advanced publisher with a cache).
-//! - [`TrackSubscriber`], [`ErrorSubscriber`]: the planner side.
+//! - [`TrackSubscriber`] (sensors' tracks), [`VehicleTrackSubscriber`] (a fused vehicle's one
+//!   object list), [`ErrorSubscriber`]: the planner side; [`StreamFilter`] is their rule for
+//!   repeats and fenced holders.
 //! - [`ZenohOptions`]: a session with the service's safe defaults (no multicast scouting).
 
 mod epoch_filter;
@@ -14,7 +16,9 @@ mod invalid;
 mod mailbox;
 mod publisher;
 mod session;
+mod stream_filter;
 mod subscriber;
+mod vehicle_subscriber;
 pub mod wire;
 
 pub use epoch_filter::{EpochFilter, MAX_EPOCH_KEYS};
@@ -26,8 +30,13 @@ pub use publisher::{
     DEFAULT_CACHE_FRAMES, DEFAULT_HEARTBEAT,
 };
 pub use session::{Mode, ZenohOptions, DEFAULT_ENDPOINT};
+pub use stream_filter::{StreamFilter, Verdict, MAX_STREAM_KEYS, RECENT_FRAMES};
 pub use subscriber::{
-    TrackCallback, TrackMessage, TrackSubscriber, TrackSubscriberOptions, RECENT_FRAMES,
+    Subscription, TrackCallback, TrackMessage, TrackSubscriber, TrackSubscriberOptions,
+};
+pub use vehicle_subscriber::{
+    VehicleTrackCallback, VehicleTrackMessage, VehicleTrackSubscriber,
+    VehicleTrackSubscriberOptions,
 };
 pub use zenoh;
 

@@ -1,13 +1,18 @@
-//! `TrackSubscriber`: the planner side. Receives decoded `TrackFrame`s of one sensor, one
-//! vehicle or the whole fleet, as a blocking iterator, by polling, or through a callback.
+//! The planner side: subscriptions to tracks keys that deliver decoded messages as a blocking
+//! iterator, by polling, or through a callback.
 //!
-//! A frame already delivered (the same key, `seq` and `stamp_ns`: what two instances of a
-//! group both send when one died between publishing a frame and the other hearing of it) is
-//! not delivered again; `duplicates()` counts them. Nor is a frame of a fenced holder (an
-//! instance paused or cut off after another took its stream over): its `epoch` is below the
-//! highest its stream has shown (`EpochFilter`); `stale()` counts them.
+//! - `TrackSubscriber`: the `TrackFrame`s of one sensor, one vehicle or the whole fleet.
+//! - `VehicleTrackSubscriber` (vehicle_subscriber.rs): a fused vehicle's `VehicleTrackFrame`s,
+//!   `<prefix>/<vehicle>/@vehicle/tracks`, one track list per vehicle.
+//!
+//! Both are a `Subscription` and judge each message with a `StreamFilter` per key. A message
+//! already delivered (the same key, `seq` and `stamp_ns`: what two instances of a group both
+//! send when one died between publishing it and the other hearing of it) is not delivered
+//! again; `duplicates()` counts them. Nor is a message of a fenced holder (an instance paused
+//! or cut off after another took its stream over): its `epoch` is below the highest its
+//! stream has shown; `stale()` counts them.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -16,18 +21,14 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 
-use crate::epoch_filter::EpochFilter;
 use crate::error::{check_id, Result};
 use crate::invalid::{InvalidCallback, Invalids};
 use crate::mailbox::Mailbox;
 use crate::session::ZenohOptions;
+use crate::stream_filter::{StreamFilter, Verdict};
 use crate::wire::{
     decode_track_frame, DecodeLimits, ErrorReason, Rejection, TrackFrame, DEFAULT_PREFIX,
 };
-
-/// Per key: a repeat comes within a takeover, a few frames at most.
-pub const RECENT_FRAMES: usize = 16;
-const MAX_KEYS: usize = 100_000;
 
 pub type TrackCallback = Arc<dyn Fn(TrackMessage) + Send + Sync>;
 
@@ -57,10 +58,19 @@ impl TrackMessage {
         self.frame.stamp_ns
     }
 
+    /// The stream's custody epoch when the service sent one (version 3), else None.
+    pub fn epoch(&self) -> Option<u64> {
+        self.frame.epoch
+    }
+
     /// Sensor stamp to arrival here; meaningful when the sensor stamps with wall-clock time.
     pub fn latency_s(&self) -> f64 {
-        (self.received_ns as f64 - self.frame.stamp_ns as f64) * 1e-9
+        latency_s(self.received_ns, self.frame.stamp_ns)
     }
+}
+
+pub(crate) fn latency_s(received_ns: u64, stamp_ns: u64) -> f64 {
+    (received_ns as f64 - stamp_ns as f64) * 1e-9
 }
 
 /// `<prefix>/<vehicle>/<sensor>/<leaf>`; `*` selects every vehicle or sensor.
@@ -122,97 +132,57 @@ impl TrackSubscriberOptions {
     }
 }
 
-/// The last (seq, stamp_ns) delivered per key: an exact repeat is not delivered again.
-#[derive(Default)]
-pub(crate) struct Recent {
-    keys: HashMap<String, VecDeque<(u64, u64)>>,
+/// What one kind of tracks message needs from a subscription: how it decodes, and what
+/// the stream filter judges it by.
+pub(crate) struct Kind<M> {
+    /// The message's name in the log line of an invalid payload.
+    pub what: &'static str,
+    /// (key, payload, limits, received_ns) -> the message
+    pub decode: fn(&str, &[u8], &DecodeLimits, u64) -> std::result::Result<M, Rejection>,
+    /// (seq, stamp_ns, epoch)
+    pub identity: fn(&M) -> (u64, u64, Option<u64>),
 }
 
-impl Recent {
-    /// True when (seq, stamp_ns) was delivered on `key` within the last `RECENT_FRAMES`;
-    /// otherwise records it. Check and record are one step under the caller's lock.
-    pub fn is_repeat(&mut self, key: &str, seq: u64, stamp_ns: u64) -> bool {
-        if !self.keys.contains_key(key) && self.keys.len() >= MAX_KEYS {
-            self.keys.clear();
-        }
-        let recent = self.keys.entry(key.to_owned()).or_default();
-        if recent.contains(&(seq, stamp_ns)) {
-            return true;
-        }
-        if recent.len() == RECENT_FRAMES {
-            recent.pop_front();
-        }
-        recent.push_back((seq, stamp_ns));
-        false
-    }
-}
-
-/// What a subscriber keeps per stream key to decide whether to deliver a frame.
-#[derive(Default)]
-struct Streams {
-    epochs: EpochFilter,
-    recent: Recent,
-}
-
-/// Why a frame was not delivered.
-enum Refused {
-    Stale,
-    Repeat,
-}
-
-impl Streams {
-    /// Fenced first: a stale holder's frame is no repeat to remember. Check and record are
-    /// one step under the caller's lock (samples of two links come on two threads).
-    fn admit(&mut self, key: &str, frame: &TrackFrame) -> std::result::Result<(), Refused> {
-        if !self.epochs.accept(key, frame.epoch) {
-            return Err(Refused::Stale);
-        }
-        if self.recent.is_repeat(key, frame.seq, frame.stamp_ns) {
-            return Err(Refused::Repeat);
-        }
-        Ok(())
-    }
-}
-
-struct Shared {
-    mailbox: Mailbox<TrackMessage>,
-    streams: Mutex<Streams>,
+/// What the Zenoh callback and the consumers share.
+struct Shared<M> {
+    kind: Kind<M>,
+    mailbox: Mailbox<M>,
+    filter: Mutex<StreamFilter>,
     duplicates: AtomicU64,
     stale: AtomicU64,
     invalid: Invalids,
-    callback: Option<TrackCallback>,
+    callback: Option<Arc<dyn Fn(M) + Send + Sync>>,
     limits: DecodeLimits,
 }
 
-impl Shared {
+impl<M> Shared<M> {
     fn on_sample(&self, sample: &Sample) {
         let received_ns = now_ns();
         let key = sample.key_expr().as_str();
-        let frame = match decode_track_frame(&sample.payload().to_bytes(), &self.limits) {
-            Ok(f) => f,
+        let payload = sample.payload().to_bytes();
+        let msg = match (self.kind.decode)(key, &payload, &self.limits, received_ns) {
+            Ok(m) => m,
             Err(r) => return self.invalid.record(key, r),
         };
+        let (seq, stamp_ns, epoch) = (self.kind.identity)(&msg);
+        // Verdict and record are one step under the lock: samples of two links come on two
+        // threads.
         let verdict = self
-            .streams
+            .filter
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .admit(key, &frame);
+            .admit(key, seq, stamp_ns, epoch);
         match verdict {
-            Ok(()) => {}
-            Err(Refused::Stale) => {
+            Verdict::Deliver => {}
+            Verdict::Stale => {
                 self.stale.fetch_add(1, Ordering::Relaxed);
                 return;
             }
-            Err(Refused::Repeat) => {
+            Verdict::Repeat => {
                 self.duplicates.fetch_add(1, Ordering::Relaxed);
                 return;
             }
         }
-        let msg = TrackMessage {
-            key: key.to_owned(),
-            frame,
-            received_ns,
-        };
         match &self.callback {
             Some(cb) => cb(msg),
             None => self.mailbox.put(msg),
@@ -220,45 +190,62 @@ impl Shared {
     }
 }
 
-pub struct TrackSubscriber {
+/// What both subscribers' options give a subscription.
+pub(crate) struct Setup<M> {
+    pub key_expr: String,
+    pub buffer: usize,
+    pub limits: DecodeLimits,
+    pub callback: Option<Arc<dyn Fn(M) + Send + Sync>>,
+    pub on_invalid: Option<InvalidCallback>,
+}
+
+/// A subscription to tracks keys, delivering messages of type `M`: `TrackSubscriber`
+/// (sensors' `TrackMessage`s) or `VehicleTrackSubscriber` (fused vehicles'
+/// `VehicleTrackMessage`s). Messages are decoded on Zenoh's thread and wait in a bounded
+/// buffer (or go to the options' callback); exact repeats and a fenced holder's messages are
+/// dropped and counted; payloads that do not decode are counted by reason.
+pub struct Subscription<M> {
     key_expr: String,
-    shared: Arc<Shared>,
+    shared: Arc<Shared<M>>,
     subscriber: Option<Subscriber<()>>,
     owned_session: Option<Session>,
 }
 
-impl TrackSubscriber {
-    pub fn new(session: &Session, options: TrackSubscriberOptions) -> Result<Self> {
-        let key_expr = match &options.key_expr {
-            Some(k) => k.clone(),
-            None => sensor_key(&options.prefix, &options.vehicle, &options.sensor, "tracks")?,
-        };
+/// The tracks of one sensor, a vehicle's sensors or the fleet's (`TrackFrame`).
+pub type TrackSubscriber = Subscription<TrackMessage>;
+
+impl<M: Send + 'static> Subscription<M> {
+    pub(crate) fn open(session: &Session, kind: Kind<M>, setup: Setup<M>) -> Result<Self> {
         let shared = Arc::new(Shared {
-            mailbox: Mailbox::new(options.buffer),
-            streams: Mutex::new(Streams::default()),
+            invalid: Invalids::new(kind.what, setup.on_invalid),
+            kind,
+            mailbox: Mailbox::new(setup.buffer),
+            filter: Mutex::new(StreamFilter::default()),
             duplicates: AtomicU64::new(0),
             stale: AtomicU64::new(0),
-            invalid: Invalids::new("track frame", options.on_invalid.clone()),
-            callback: options.callback.clone(),
-            limits: options.limits,
+            callback: setup.callback,
+            limits: setup.limits,
         });
         let handler = Arc::clone(&shared);
         let subscriber = session
-            .declare_subscriber(key_expr.clone())
+            .declare_subscriber(setup.key_expr.clone())
             .callback(move |sample: Sample| handler.on_sample(&sample))
             .wait()?;
         Ok(Self {
-            key_expr,
+            key_expr: setup.key_expr,
             shared,
             subscriber: Some(subscriber),
             owned_session: None,
         })
     }
 
-    /// A subscriber with a session of its own, closed by `close()`.
-    pub fn connect(zenoh: &ZenohOptions, options: TrackSubscriberOptions) -> Result<Self> {
+    /// `new` on a session of its own, closed by `close()`.
+    pub(crate) fn with_own_session(
+        zenoh: &ZenohOptions,
+        new: impl FnOnce(&Session) -> Result<Self>,
+    ) -> Result<Self> {
         let session = zenoh.open()?;
-        match Self::new(&session, options) {
+        match new(&session) {
             Ok(mut sub) => {
                 sub.owned_session = Some(session);
                 Ok(sub)
@@ -269,46 +256,48 @@ impl TrackSubscriber {
             }
         }
     }
+}
 
+impl<M> Subscription<M> {
     pub fn key_expr(&self) -> &str {
         &self.key_expr
     }
 
-    /// The next frame, waiting up to `timeout` (None: until one comes or `close()`).
-    pub fn recv(&self, timeout: Option<Duration>) -> Option<TrackMessage> {
+    /// The next message, waiting up to `timeout` (None: until one comes or `close()`).
+    pub fn recv(&self, timeout: Option<Duration>) -> Option<M> {
         self.shared.mailbox.get(timeout)
     }
 
-    pub fn try_recv(&self) -> Option<TrackMessage> {
+    pub fn try_recv(&self) -> Option<M> {
         self.shared.mailbox.try_get()
     }
 
     /// Blocking iteration; ends on `close()` once drained.
-    pub fn iter(&self) -> impl Iterator<Item = TrackMessage> + '_ {
+    pub fn iter(&self) -> impl Iterator<Item = M> + '_ {
         std::iter::from_fn(move || self.recv(None))
     }
 
-    /// Frames delivered to the buffer so far.
+    /// Messages delivered to the buffer so far.
     pub fn received(&self) -> u64 {
         self.shared.mailbox.put_count()
     }
 
-    /// Frames pushed out of the full buffer before anyone took them.
+    /// Messages pushed out of the full buffer before anyone took them.
     pub fn dropped(&self) -> u64 {
         self.shared.mailbox.dropped()
     }
 
-    /// Exact repeats (same key, seq and stamp) not delivered again.
+    /// Repeats (same key, seq and stamp, or a new holder's replay) not delivered again.
     pub fn duplicates(&self) -> u64 {
         self.shared.duplicates.load(Ordering::Relaxed)
     }
 
-    /// Frames of a fenced holder (an epoch below its stream's highest), not delivered.
+    /// Messages of a fenced holder (an epoch below its stream's highest), not delivered.
     pub fn stale(&self) -> u64 {
         self.shared.stale.load(Ordering::Relaxed)
     }
 
-    /// Payloads on a tracks key that did not decode.
+    /// Payloads on a subscribed key that did not decode.
     pub fn invalid(&self) -> u64 {
         self.shared.invalid.count()
     }
@@ -319,6 +308,15 @@ impl TrackSubscriber {
 
     pub fn last_rejection(&self) -> Option<Rejection> {
         self.shared.invalid.last()
+    }
+
+    /// The highest custody epoch `key` (a sample's key) has shown; None when none.
+    pub fn highest_epoch(&self, key: &str) -> Option<u64> {
+        self.shared
+            .filter
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .highest_epoch(key)
     }
 
     /// Wake every consumer and stop; closes the session if this subscriber opened it.
@@ -333,9 +331,47 @@ impl TrackSubscriber {
     }
 }
 
-impl Drop for TrackSubscriber {
+impl<M> Drop for Subscription<M> {
     fn drop(&mut self) {
         self.close();
+    }
+}
+
+fn track_kind() -> Kind<TrackMessage> {
+    Kind {
+        what: "track frame",
+        decode: |key, payload, limits, received_ns| {
+            Ok(TrackMessage {
+                key: key.to_owned(),
+                frame: decode_track_frame(payload, limits)?,
+                received_ns,
+            })
+        },
+        identity: |m| (m.frame.seq, m.frame.stamp_ns, m.frame.epoch),
+    }
+}
+
+impl Subscription<TrackMessage> {
+    pub fn new(session: &Session, options: TrackSubscriberOptions) -> Result<Self> {
+        let key_expr = match &options.key_expr {
+            Some(k) => k.clone(),
+            None => sensor_key(&options.prefix, &options.vehicle, &options.sensor, "tracks")?,
+        };
+        let setup = Setup {
+            key_expr,
+            buffer: options.buffer,
+            limits: options.limits,
+            callback: options
+                .callback
+                .map(|cb| cb as Arc<dyn Fn(TrackMessage) + Send + Sync>),
+            on_invalid: options.on_invalid,
+        };
+        Self::open(session, track_kind(), setup)
+    }
+
+    /// A subscriber with a session of its own, closed by `close()`.
+    pub fn connect(zenoh: &ZenohOptions, options: TrackSubscriberOptions) -> Result<Self> {
+        Self::with_own_session(zenoh, |session| Self::new(session, options))
     }
 }
 
@@ -344,22 +380,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn an_exact_repeat_is_caught_per_key_and_a_new_stamp_is_not() {
-        let mut r = Recent::default();
-        assert!(!r.is_repeat("fleet/v/s/tracks", 3, 100));
-        assert!(r.is_repeat("fleet/v/s/tracks", 3, 100));
-        assert!(!r.is_repeat("fleet/v/s/tracks", 3, 200)); // a restarted publisher's seq 3
-        assert!(!r.is_repeat("fleet/v/t/tracks", 3, 100)); // another sensor
-    }
-
-    #[test]
-    fn the_window_is_the_last_recent_frames() {
-        let mut r = Recent::default();
-        for seq in 0..=RECENT_FRAMES as u64 {
-            assert!(!r.is_repeat("k", seq, seq));
-        }
-        assert!(!r.is_repeat("k", 0, 0)); // pushed out by the newer ones
-        assert!(r.is_repeat("k", RECENT_FRAMES as u64, RECENT_FRAMES as u64));
+    fn a_key_of_wildcards_is_built_and_a_bad_id_refused() {
+        assert_eq!(
+            sensor_key("fleet", "*", "*", "tracks").unwrap(),
+            "fleet/*/*/tracks"
+        );
+        let e = sensor_key("fleet", "veh/1", "*", "tracks").unwrap_err();
+        assert!(e.to_string().contains("\"veh/1\""), "{e}");
     }
 
     fn frame(seq: u64, stamp_ns: u64, epoch: Option<u64>) -> TrackFrame {
@@ -374,37 +401,27 @@ mod tests {
             instance: "svc".into(),
             received_ns: 0,
             published_ns: 0,
-            tracks: crate::wire::TrackColumns::default(),
+            tracks: crate::wire::TrackColumns {
+                age_s: Some(vec![]),
+                time_since_update_s: Some(vec![]),
+                ..Default::default()
+            },
             schema_version: 3,
             epoch,
         }
     }
 
     #[test]
-    fn a_fenced_holders_frame_is_stale_and_an_equal_epoch_follows_the_repeat_rule() {
-        let mut s = Streams::default();
-        let k = "fleet/v/s/tracks";
-        assert!(s.admit(k, &frame(0, 100, Some(1))).is_ok());
-        assert!(s.admit(k, &frame(1, 200, Some(2))).is_ok());
-        assert!(matches!(
-            s.admit(k, &frame(2, 300, Some(1))),
-            Err(Refused::Stale)
-        ));
-        assert!(matches!(
-            s.admit(k, &frame(1, 200, Some(2))),
-            Err(Refused::Repeat)
-        ));
-        assert!(s.admit(k, &frame(3, 400, None)).is_ok()); // a service of before epochs
-        assert!(s.admit(k, &frame(4, 500, Some(2))).is_ok());
-    }
-
-    #[test]
-    fn a_key_of_wildcards_is_built_and_a_bad_id_refused() {
+    fn a_track_messages_identity_is_its_seq_stamp_and_epoch() {
+        let kind = track_kind();
+        let payload = crate::wire::encode_track_frame(&frame(4, 400, Some(7))).unwrap();
+        let msg = (kind.decode)("fleet/v/s/tracks", &payload, &DecodeLimits::default(), 9).unwrap();
+        assert_eq!((kind.identity)(&msg), (4, 400, Some(7)));
         assert_eq!(
-            sensor_key("fleet", "*", "*", "tracks").unwrap(),
-            "fleet/*/*/tracks"
+            (msg.key.as_str(), msg.received_ns, msg.epoch()),
+            ("fleet/v/s/tracks", 9, Some(7))
         );
-        let e = sensor_key("fleet", "veh/1", "*", "tracks").unwrap_err();
-        assert!(e.to_string().contains("\"veh/1\""), "{e}");
+        let err = (kind.decode)("k", b"\xc1", &DecodeLimits::default(), 0).unwrap_err();
+        assert_eq!(err.reason, ErrorReason::Malformed);
     }
 }

@@ -2,7 +2,8 @@
 // newer). DetectionFrame versions 1 and 2 (extrinsic), TrackFrame 1 to 3 (3: the custody
 // epoch), FrameError, and a vehicle's fused tracks (VehicleTrackFrame 1 and 2,
 // wire/vehicle_tracks.hpp); simpletrack::EpochFilter drops what a fenced holder of a tracks
-// stream sends (wire/epoch_filter.hpp).
+// stream sends (wire/epoch_filter.hpp), simpletrack::StreamFilter that and exact repeats too
+// (wire/stream_filter.hpp: the subscribers' rule).
 //
 //   #include <simpletrack/wire.hpp>
 //   namespace wire = simpletrack::wire;
@@ -17,4 +18,5 @@
 #include "simpletrack/wire/encode.hpp"
 #include "simpletrack/wire/epoch_filter.hpp"
 #include "simpletrack/wire/messages.hpp"
+#include "simpletrack/wire/stream_filter.hpp"
 #include "simpletrack/wire/vehicle_tracks.hpp"

@@ -191,6 +191,17 @@ fn a_vehicle_frame_round_trips_and_names_its_tracks() {
     assert_eq!(back.last_update_ns(0, "radar"), Some(1_950));
     assert_eq!(back.last_update_ns(1, "radar"), None);
     assert_eq!(back.last_update_ns(1, "camera"), None);
+    assert_eq!(back.count(), 2);
+    assert_eq!(
+        back.global_ids(),
+        ["veh-1/@vehicle/7", "veh-1/@vehicle/1099511627776"]
+    );
+    assert_eq!((back.existence(1), back.existence(2)), (Some(0.25), None));
+    assert_eq!(back.contributors(0), [("lidar", 2_000), ("radar", 1_950)]);
+    assert_eq!(back.contributors(1), [("lidar", 2_000)]);
+    assert!(back.contributors(2).is_empty());
+    assert_eq!(back.condition("radar"), Some(SensorCondition::Extrinsic));
+    assert_eq!(back.condition("camera"), None);
     // A sensor's TrackFrame decoder does not take it, nor the other way round.
     assert!(decode_track_frame(&payload, &DecodeLimits::default()).is_err());
 }

@@ -83,6 +83,44 @@ impl VehicleTrackFrame {
         let stamp = *self.tracks.sensor_stamp_ns.as_ref()?.get(i)?.get(j)?;
         u64::try_from(stamp).ok()
     }
+
+    /// The number of tracks.
+    pub fn count(&self) -> usize {
+        self.tracks.count()
+    }
+
+    /// Every track's `global_id`, in column order.
+    pub fn global_ids(&self) -> Vec<String> {
+        let vehicle = &self.vehicle;
+        let ids = self.tracks.id.iter();
+        ids.map(|id| format!("{vehicle}/{VEHICLE_STREAM}/{id}"))
+            .collect()
+    }
+
+    /// The probability in [0, 1] that track `i` is a real object; None when `i` is out of
+    /// range (or the columns have no `existence`: a frame built by hand).
+    pub fn existence(&self, i: usize) -> Option<f64> {
+        self.tracks.existence.as_ref()?.get(i).copied()
+    }
+
+    /// The sensors that updated track `i`, each with the `stamp_ns` of its last update, in
+    /// the order of `sensors`; empty when `i` is out of range.
+    pub fn contributors(&self, i: usize) -> Vec<(&str, u64)> {
+        let Some(row) = self.tracks.sensor_stamp_ns.as_ref().and_then(|s| s.get(i)) else {
+            return Vec::new();
+        };
+        self.sensors
+            .iter()
+            .zip(row)
+            .filter_map(|(s, &stamp)| Some((s.as_str(), u64::try_from(stamp).ok()?)))
+            .collect()
+    }
+
+    /// The condition of fused sensor `sensor`; None when it is not one of `sensors`.
+    pub fn condition(&self, sensor: &str) -> Option<SensorCondition> {
+        let j = self.sensors.iter().position(|s| s == sensor)?;
+        self.sensor_state.get(j).copied()
+    }
 }
 
 fn condition(v: &V<'_>) -> Checked<SensorCondition> {

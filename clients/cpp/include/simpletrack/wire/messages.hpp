@@ -264,6 +264,36 @@ struct VehicleTrackFrame {
     }
     return std::nullopt;
   }
+
+  // The number of tracks; track i's columns are tracks.<column>[i].
+  std::size_t count() const { return tracks.count(); }
+
+  // The probability in [0, 1] that track i is a real object (tracks.existence[i]; a decoded
+  // frame always has the column). Throws std::out_of_range for an i past count().
+  double existence(std::size_t i) const {
+    if (!tracks.existence) throw std::out_of_range("VehicleTrackFrame without existence");
+    return tracks.existence->at(i);
+  }
+
+  // The sensors that updated track i, each with the stamp_ns of its last update, in the
+  // order of `sensors`. Throws std::out_of_range for an i past count().
+  std::vector<std::pair<std::string, std::uint64_t>> contributors(std::size_t i) const {
+    std::vector<std::pair<std::string, std::uint64_t>> out;
+    if (!tracks.sensor_stamp_ns) return out;
+    const std::vector<std::int64_t>& row = tracks.sensor_stamp_ns->at(i);
+    for (std::size_t j = 0; j < sensors.size() && j < row.size(); ++j) {
+      if (row[j] >= 0) out.emplace_back(sensors[j], static_cast<std::uint64_t>(row[j]));
+    }
+    return out;
+  }
+
+  // The condition of fused sensor `name`; nullopt when it is not one of `sensors`.
+  std::optional<SensorCondition> condition(std::string_view name) const {
+    for (std::size_t j = 0; j < sensors.size() && j < sensor_state.size(); ++j) {
+      if (sensors[j] == name) return sensor_state[j];
+    }
+    return std::nullopt;
+  }
 };
 
 // `<prefix>/<vehicle>/<sensor>/errors`
