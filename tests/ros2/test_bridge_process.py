@@ -8,8 +8,6 @@ session connects to the bridge (peers do not route for each other)."""
 from __future__ import annotations
 
 import math
-import os
-import signal
 import subprocess
 import sys
 import threading
@@ -28,6 +26,7 @@ from simpletrack.session import open_session
 from simpletrack.spawn import free_port
 from simpletrack.wire import FrameError, Rejection, decode_message
 from tests.ros2 import rosmsgs as R
+from tests.ros2.bridge_process import Bridge, start_bridge
 from tests.service_helpers import ROOT, ServiceProcess, start_service, wait_for
 
 pytestmark = pytest.mark.zenoh
@@ -43,57 +42,12 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServiceProcess
     svc.stop()
 
 
-@dataclass
-class Bridge:
-    proc: subprocess.Popen[bytes]
-    endpoint: str
-    out: Path
-    err: Path
-
-    def stderr(self) -> str:
-        return self.err.read_text()
-
-    def stop(self) -> tuple[int, str]:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        try:
-            rc = self.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"bridge did not stop on SIGTERM:\n{self.stderr()}") from None
-        return rc, self.out.read_text()
-
-
 @pytest.fixture
 def bridges(tmp_path: Path) -> Iterator[list[Bridge]]:
     started: list[Bridge] = []
     yield started
     for b in started:
-        if b.proc.poll() is None:
-            b.proc.kill()
-            b.proc.wait()
-
-
-def start_bridge(started: list[Bridge], tmp: Path, svc: ServiceProcess, *args: str) -> Bridge:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    cmd = [
-        sys.executable, "-m", "simpletrack.cli.main", "bridge", "ros2",
-        "--listen", endpoint, "--connect", svc.endpoint, "--log-interval", "0.5", *args,
-    ]  # fmt: skip
-    out, err = tmp / f"bridge-{len(started)}.out", tmp / f"bridge-{len(started)}.err"
-    with open(out, "wb") as o, open(err, "wb") as e:
-        proc = subprocess.Popen(
-            cmd, cwd=ROOT, env={**os.environ, "NO_COLOR": "1"}, stdout=o, stderr=e
-        )
-    bridge = Bridge(proc, endpoint, out, err)
-    started.append(bridge)
-    deadline = time.monotonic() + 60
-    while "bridging " not in bridge.stderr():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            raise AssertionError(f"bridge not up (rc {proc.poll()}):\n{bridge.stderr()}")
-        time.sleep(0.05)
-    return bridge
+        b.kill()
 
 
 @dataclass

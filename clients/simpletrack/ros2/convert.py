@@ -19,10 +19,15 @@ Detections, object by object:
 Tracks, one TrackedObject each:
     object_id     ``uuid5(NAMESPACE_URL, "simpletrack:" + global id)``, the global id being
                   ``<vehicle>/<sensor>/<track id>`` (schemas/README.md, "Track identity"):
-                  one UUID per track of the fleet, for its whole life, never reused
-    existence     the track score; classification: one entry, the track's class through the
-                  label map (the first label mapped to it; UNKNOWN if none) with probability
-                  1.0, since a track's class is fixed when it is born
+                  one UUID per track of the fleet, for its whole life, never reused. A
+                  vehicle's fused track (VehicleTrackFrame) has the global id
+                  ``<vehicle>/@vehicle/<track id>``, the same rule: no sensor is named
+                  ``@vehicle``, so a fused track's UUID is never a sensor track's
+    existence     the fused track's ``existence`` (the posterior that it is a real object)
+                  where the columns carry one (a VehicleTrackFrame), else the track score
+    class         one classification: the track's class through the label map (the first
+                  label mapped to it; UNKNOWN if none) with probability 1.0, since a
+                  track's class is fixed when it is born
     kinematics    pose from the box centre and yaw (orientation AVAILABLE); twist linear from
                   the track velocity rotated into the object's frame (z unchanged), angular 0;
                   acceleration 0; is_stationary false. Covariances, from a version-2 frame
@@ -196,6 +201,8 @@ def _empty(classes: tuple[str, ...]) -> BoxArrays:
 
 
 def object_uuid(vehicle: str, sensor: str, track_id: int) -> bytes:
+    """The 16 bytes of ``uuid5(NAMESPACE_URL, "simpletrack:<vehicle>/<sensor>/<id>")``;
+    ``sensor`` is ``@vehicle`` for a vehicle's fused tracks."""
     return uuid.uuid5(
         uuid.NAMESPACE_URL, "simpletrack:" + global_id(vehicle, sensor, track_id)
     ).bytes
@@ -230,7 +237,10 @@ def tracks_to_tracked_objects(
     frame_id: str,
     labels: LabelMap,
 ) -> TrackedObjects:
+    """One TrackedObject per track; ``sensor`` is the stream's name (``@vehicle`` for a
+    vehicle's fused tracks, whose ``existence`` column becomes the existence probability)."""
     names = tracks.classes
+    existence = tracks.score if tracks.existence is None else tracks.existence
     objects = []
     covariances = _ros_covariances(tracks)
     for i in range(len(tracks)):
@@ -253,7 +263,7 @@ def tracks_to_tracked_objects(
         objects.append(
             TrackedObject(
                 object_id=UUID(object_uuid(vehicle, sensor, int(tracks.id[i]))),
-                existence_probability=float(tracks.score[i]),
+                existence_probability=float(existence[i]),
                 classification=(ObjectClassification(label, 1.0),),
                 kinematics=kinematics,
                 shape=Shape(ShapeType.BOUNDING_BOX, dimensions=Vector3(length, width, height)),

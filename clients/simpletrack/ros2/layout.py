@@ -12,6 +12,9 @@ rmw_zenoh ROS 2 nodes on rmw_zenoh_cpp (ros2/rmw_zenoh docs/design.md): key
           which an rmw_zenoh subscription drops it. Publishers and subscriptions also declare
           liveliness tokens under ``@ros2_lv`` so that they show in the ROS graph
           (``graph_tokens``); data flows without them.
+
+A fused vehicle's bridge (``fused_keys``) has one input key per sensor, built from each
+input's topic the same way, and one output key.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import re
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -79,6 +83,15 @@ class TopicKeys:
     domain: int = 0
 
 
+def _layout_key(layout: Layout, full: str, type_name: str, domain: int) -> str:
+    return full if layout is Layout.ROS2DDS else rmw_zenoh_key(full, type_name, domain)
+
+
+def _check_domain(domain: int) -> None:
+    if not 0 <= domain <= 232:  # the DDS domain ids ROS 2 can use
+        raise ValueError(f"domain {domain} must be a ROS_DOMAIN_ID between 0 and 232")
+
+
 def topic_keys(
     layout: Layout,
     topic: str = DEFAULT_TOPIC,
@@ -93,20 +106,77 @@ def topic_keys(
     check_topic(topic)
     check_topic(out_topic)
     check_namespace(namespace)
-    if not 0 <= domain <= 232:  # the DDS domain ids ROS 2 can use
-        raise ValueError(f"domain {domain} must be a ROS_DOMAIN_ID between 0 and 232")
+    _check_domain(domain)
     full_in = ros2dds_key(topic, namespace)
     full_out = ros2dds_key(out_topic, namespace)
-    if layout is Layout.ROS2DDS:
-        default_in, default_out = full_in, full_out
-    else:
-        default_in = rmw_zenoh_key(full_in, DETECTED_OBJECTS, domain)
-        default_out = rmw_zenoh_key(full_out, TRACKED_OBJECTS, domain)
     return TopicKeys(
         layout,
-        in_key or default_in,
-        out_key or default_out,
+        in_key or _layout_key(layout, full_in, DETECTED_OBJECTS, domain),
+        out_key or _layout_key(layout, full_out, TRACKED_OBJECTS, domain),
         "/" + full_in,
+        "/" + full_out,
+        domain,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class InputKey:
+    """One sensor's DetectedObjects input of a fused vehicle's bridge."""
+
+    sensor: str
+    topic: str  # the full ROS name, namespace included
+    key: str
+
+
+@dataclass(frozen=True, slots=True)
+class FusedKeys:
+    """A fused vehicle's bridge: one input per sensor, one TrackedObjects output."""
+
+    layout: Layout
+    inputs: tuple[InputKey, ...]
+    out_key: str
+    out_topic: str
+    domain: int = 0
+
+
+def fused_keys(
+    layout: Layout,
+    inputs: Sequence[tuple[str, str]],
+    out_topic: str = DEFAULT_OUT_TOPIC,
+    *,
+    domain: int = 0,
+    namespace: str = "",
+    out_key: str | None = None,
+) -> FusedKeys:
+    """Keys of (sensor, topic) inputs and the output topic, as ``topic_keys`` builds them.
+    Each sensor and each topic once; no input on the output topic."""
+    if not inputs:
+        raise ValueError("a fused vehicle's bridge needs at least one input")
+    check_topic(out_topic)
+    check_namespace(namespace)
+    _check_domain(domain)
+    full_out = ros2dds_key(out_topic, namespace)
+    built: list[InputKey] = []
+    for sensor, topic in inputs:
+        check_topic(topic)
+        full = ros2dds_key(topic, namespace)
+        for other in built:
+            if other.sensor == sensor:
+                raise ValueError(f"sensor {sensor!r} is given two inputs")
+            if other.topic == "/" + full:
+                raise ValueError(
+                    f"sensors {other.sensor!r} and {sensor!r} are both on topic /{full}: each "
+                    "message would be published twice"
+                )
+        if full == full_out:
+            raise ValueError(f"input {sensor!r} is on the output topic /{full}")
+        built.append(
+            InputKey(sensor, "/" + full, _layout_key(layout, full, DETECTED_OBJECTS, domain))
+        )
+    return FusedKeys(
+        layout,
+        tuple(built),
+        out_key or _layout_key(layout, full_out, TRACKED_OBJECTS, domain),
         "/" + full_out,
         domain,
     )
@@ -138,9 +208,10 @@ def _mangle(name: str) -> str:
     return name.replace("/", "%") or "%"
 
 
-def graph_tokens(keys: TopicKeys, zid: str, node: str = NODE_NAME) -> list[str]:
-    """rmw_zenoh liveliness tokens of the bridge as a ROS node with a subscription to the
-    input topic and a publisher on the output topic (design.md, "Graph Cache")."""
+def graph_tokens(keys: TopicKeys | FusedKeys, zid: str, node: str = NODE_NAME) -> list[str]:
+    """rmw_zenoh liveliness tokens of the bridge as a ROS node with a subscription to each
+    input topic and a publisher on the output topic (design.md, "Graph Cache"): the node,
+    the subscriptions (entity ids from 1), then the publisher."""
     head = f"@ros2_lv/{keys.domain}/{zid}/0"
     tail = f"%/%/{node}"
     node_token = f"{head}/0/NN/{tail}"
@@ -151,8 +222,9 @@ def graph_tokens(keys: TopicKeys, zid: str, node: str = NODE_NAME) -> list[str]:
             f"{type_hash(type_name)}/{QOS_DEPTH_10}"
         )
 
-    return [
-        node_token,
-        entity(1, "MS", keys.in_topic, DETECTED_OBJECTS),
-        entity(2, "MP", keys.out_topic, TRACKED_OBJECTS),
+    topics = [keys.in_topic] if isinstance(keys, TopicKeys) else [i.topic for i in keys.inputs]
+    subscriptions = [
+        entity(eid, "MS", topic, DETECTED_OBJECTS) for eid, topic in enumerate(topics, 1)
     ]
+    publisher = entity(len(topics) + 1, "MP", keys.out_topic, TRACKED_OBJECTS)
+    return [node_token, *subscriptions, publisher]
