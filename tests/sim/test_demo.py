@@ -147,11 +147,14 @@ def test_the_demo_serves_its_fleet_in_the_browser_view_and_loses_no_frame() -> N
 
     demo = FleetDemo(DemoOptions(sim=SimConfig(seed=3, vehicles=2), duration=4.0, view_port=0))
     result = demo.run(on_tick)
-    assert result.view_url is not None and "?sensor=veh00/lidar" in result.view_url
+    assert result.view_url is not None and "?sensor=veh00/@vehicle" in result.view_url
     assert seen, "the view never answered"
     sensors = seen[0]["sensors"]
     assert isinstance(sensors, dict)
     assert set(sensors) == {f"veh0{v}/{s}" for v in range(2) for s in ("lidar", "front")}
+    vehicles = seen[0]["vehicles"]
+    assert isinstance(vehicles, dict)
+    assert {f"veh0{v}/@vehicle" for v in range(2)} <= set(vehicles)
     for name, s in sensors.items():
         assert s["tracks"], name
         assert s["detections"]["boxes"], name

@@ -1,5 +1,5 @@
-"""Headless chromium for the view's page: the binary (skip without one, fail under CI=true)
-and a screenshot of a URL."""
+"""Headless chromium for the view's page: the binary (skip without one, fail under CI=true),
+a screenshot of a URL, and its DOM once the page's scripts ran."""
 
 from __future__ import annotations
 
@@ -24,12 +24,11 @@ def need_chromium() -> str:
     return exe
 
 
-def screenshot(url: str, out: Path) -> Path:
-    """The page at ``url`` as a PNG of ``WINDOW`` pixels. Virtual time waits for the page's
-    fetch of /state.json, so the picture is the one drawn from it (``live=0`` in the URL:
-    an event stream never finishes loading and would hold virtual time forever)."""
+def _run(url: str, profile: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    """Chromium on ``url`` with ``extra`` flags. Virtual time waits for the page's fetch of
+    /state.json, so what comes out is drawn from it (``live=0`` in the URL: an event stream
+    never finishes loading and would hold virtual time forever)."""
     exe = need_chromium()
-    profile = out.parent / "chromium-profile"
     cmd = [
         exe,
         "--headless=new",
@@ -40,9 +39,21 @@ def screenshot(url: str, out: Path) -> Path:
         f"--user-data-dir={profile}",
         f"--window-size={WINDOW[0]},{WINDOW[1]}",
         "--virtual-time-budget=5000",
-        f"--screenshot={out}",
+        *extra,
         url,
     ]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+
+
+def screenshot(url: str, out: Path) -> Path:
+    """The page at ``url`` as a PNG of ``WINDOW`` pixels."""
+    done = _run(url, out.parent / "chromium-profile", f"--screenshot={out}")
     assert done.returncode == 0 and out.is_file(), done.stderr[-2000:]
     return out
+
+
+def dump_dom(url: str, workdir: Path) -> str:
+    """The page's DOM (its panel and legend as the scripts filled them), as HTML."""
+    done = _run(url, workdir / "chromium-profile", "--dump-dom")
+    assert done.returncode == 0 and "<canvas" in done.stdout, done.stderr[-2000:]
+    return done.stdout

@@ -58,7 +58,11 @@ def test_the_printed_url_serves_the_page_and_the_state() -> None:
         with urllib.request.urlopen(url, timeout=5) as r:
             assert b"<canvas" in r.read()
         with urllib.request.urlopen(url + "state.json", timeout=5) as r:
-            assert json.loads(r.read()) == {"detections_enabled": False, "sensors": {}}
+            assert json.loads(r.read()) == {
+                "detections_enabled": False,
+                "sensors": {},
+                "vehicles": {},
+            }
     finally:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(30) == 0

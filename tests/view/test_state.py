@@ -138,3 +138,31 @@ def test_a_sensor_filter_keeps_other_vehicles_out(rig: Rig) -> None:
     wait_for(lambda: state(rig)["veh01/lidar"]["seq"] == 2, 10, "the second frame")
     assert list(state(rig)) == ["veh01/lidar"]
     assert get_json(rig.view.url + "state.json")["detections_enabled"] is False
+
+
+@pytest.mark.parametrize(
+    "rig", [{"sensors": ["veh02/@vehicle"], "detections": True}], indirect=True
+)
+def test_a_fused_vehicle_filter_takes_its_fused_stream_and_its_sensors_detections(
+    rig: Rig,
+) -> None:
+    from tests.view.frames import VehicleSender, detection_frame, vehicle_arrays
+
+    fused = VehicleSender(rig.publisher, "veh02", ["lidar"])
+    fused.wait_matched()
+    other = Sender(rig.publisher, "veh01", "lidar")  # nobody subscribes: no match to wait for
+    other.tracks(TRACKS)
+    fused.detections("lidar", detection_frame("veh02", "lidar", 1, TRACKS[:2], extrinsic=pose_at(0, 0, 0)))  # fmt: skip
+    stamp = time.time_ns()
+    fused.tracks("lidar", vehicle_arrays(TRACKS, [0.9, 0.8, 0.7], [[stamp]] * 3), ["ok"], stamp)
+
+    def ready() -> bool:
+        v = get_json(rig.view.url + "state.json")["vehicles"].get("veh02/@vehicle")
+        return bool(v and v["sensors"][0]["detections"])
+
+    wait_for(ready, 10, "the fused vehicle and its sensor's detections")
+    got = get_json(rig.view.url + "state.json")
+    assert got["sensors"].keys() == {"veh02/lidar"}  # its detections; no other vehicle
+    vehicle = got["vehicles"]["veh02/@vehicle"]
+    assert [t["id"] for t in vehicle["tracks"]] == [11, 12, 13]
+    assert len(vehicle["sensors"][0]["detections"]["boxes"]) == 2

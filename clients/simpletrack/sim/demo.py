@@ -365,7 +365,7 @@ class FleetDemo:
             view = serve_view(session, prefix, port=port, detections=True, fov=fov)
         except PortInUse:
             view = serve_view(session, prefix, port=0, detections=True, fov=fov)
-        first = f"{vehicle_id(0)}/{self.options.sim.sensors[0].name}"
+        first = f"{vehicle_id(0)}/{VEHICLE_STREAM}"  # the fused vehicle: what planners get
         result.view_url = f"{view.url}?sensor={first}"
         return view
 

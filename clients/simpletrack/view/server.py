@@ -3,10 +3,11 @@
     view = serve_view(session, "fleet", "127.0.0.1", 8090)   # port 0: any free port
     print(view.url); ...; view.close()
 
-Endpoints: ``/`` the page (one static file), ``/state.json`` every sensor's latest frame,
-``/events?sensor=V/S`` Server-Sent Events: the chosen sensor's latest frame, pushed when a
-new one came but at most ``MAX_PUSH_HZ`` times a second. Nothing queues: a slow page just
-skips to the newest frame.
+Subscribes to ``<prefix>/*/*/tracks`` (each sensor's tracks) and ``<prefix>/*/@vehicle/tracks``
+(each fused vehicle's). Endpoints: ``/`` the page (one static file), ``/state.json`` every
+stream's latest frame, ``/events?sensor=V/S`` (or ``V/@vehicle``) Server-Sent Events: the
+chosen stream's latest frame, pushed when a new one came but at most ``MAX_PUSH_HZ`` times a
+second. Nothing queues: a slow page just skips to the newest frame.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ from urllib.parse import parse_qs, urlsplit
 
 import zenoh
 
-from simpletrack.client.subscriber import TrackSubscriber
+from simpletrack.client.subscriber import TrackSubscriber, VehicleTrackSubscriber
 from simpletrack.view.state import Fov, ViewState
-from simpletrack.wire.keys import Keys
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 
 log = logging.getLogger(__name__)
 MAX_PUSH_HZ = 10.0
@@ -45,7 +46,8 @@ def _page() -> bytes:
 
 
 def _sensor_filters(sensors: Iterable[str] | None) -> list[tuple[str, str]]:
-    """``vehicle/sensor`` names (either may be ``*``) as pairs; ``[("*", "*")]`` for all."""
+    """``vehicle/sensor`` names (either may be ``*``; the sensor may be ``@vehicle``, a
+    vehicle's fused stream) as pairs; ``[("*", "*")]`` for all."""
     out = []
     for name in sensors or ["*/*"]:
         vehicle, sep, sensor = name.partition("/")
@@ -84,21 +86,35 @@ class ViewServer:
         shown = f"[{shown}]" if ":" in shown else shown
         self.url = f"http://{shown}:{self.port}/"
         self._keys = Keys(prefix)
-        self._subs: list[TrackSubscriber] = []
+        self._subs: list[TrackSubscriber | VehicleTrackSubscriber] = []
         self._det_subs: list[zenoh.Subscriber[None]] = []
+        fused_vehicles: set[str] = set()  # one fused subscription per vehicle filter
         try:
             for vehicle, sensor in filters:
-                self._subs.append(
-                    TrackSubscriber(
-                        session,
-                        vehicle=vehicle,
-                        sensor=sensor,
-                        prefix=prefix,
-                        callback=self.state.add_tracks,
+                fused = sensor == VEHICLE_STREAM
+                if not fused:
+                    self._subs.append(
+                        TrackSubscriber(
+                            session,
+                            vehicle=vehicle,
+                            sensor=sensor,
+                            prefix=prefix,
+                            callback=self.state.add_tracks,
+                        )
                     )
-                )
-                if detections:
-                    key = f"{prefix}/{vehicle}/{sensor}/detections"
+                # A `*` sensor never matches the verbatim `@vehicle`: subscribed as well.
+                if (fused or sensor == "*") and vehicle not in fused_vehicles:
+                    fused_vehicles.add(vehicle)
+                    self._subs.append(
+                        VehicleTrackSubscriber(
+                            session,
+                            vehicle=vehicle,
+                            prefix=prefix,
+                            callback=self.state.add_vehicle_tracks,
+                        )
+                    )
+                if detections:  # a fused vehicle's: those of its sensors
+                    key = f"{prefix}/{vehicle}/{'*' if fused else sensor}/detections"
                     self._det_subs.append(session.declare_subscriber(key, self._on_detections))
         except BaseException:
             self.close()

@@ -18,17 +18,21 @@ from simpletrack.cli.errors import UserError
 from simpletrack.view import DEFAULT_PORT, Fov, PortInUse, ViewServer
 
 EPILOG = f"""\
-Subscribes to <prefix>/*/*/tracks like a planner (and to detections with --detections) and
-serves a page drawing the chosen sensor's tracks from above: boxes by state, ids, heading,
-velocity, the ego pose (when frames carry one) and the field of view given with --fov. Also
-GET /state.json (the latest frame of every sensor) and /events (Server-Sent Events, at most
-10 pushes a second). Ends on Ctrl-C.
+Subscribes to <prefix>/*/*/tracks and <prefix>/*/@vehicle/tracks like a planner (and to
+detections with --detections) and serves a page drawing the chosen stream's tracks from
+above: boxes by state, ids, heading, velocity, the ego pose (when frames carry one) and the
+field of view given with --fov. A fused vehicle (<vehicle>/@vehicle, the page's first choice
+when there is one) shows every fused sensor in a colour of its own: its field of view from
+where it is mounted, its detections, its condition, and on each track which sensors last
+updated it. Also GET /state.json (the latest frame of every stream) and /events
+(Server-Sent Events, at most 10 pushes a second). Ends on Ctrl-C.
 
 {ZENOH_NOTE}
 
 examples:
   simpletrack view                                   # open the URL it prints
   simpletrack view --sensors veh01/lidar,veh02/'*' --detections
+  simpletrack view --sensors veh01/@vehicle --detections --fov lidar=360:50 --fov camera=90:75
   simpletrack view --fov lidar=360:50 --fov front=100:70
 """
 
@@ -44,7 +48,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument(
         "--sensors",
         metavar="V/S[,V/S...]",
-        help="only these vehicle/sensor streams (either part may be *); default all",
+        help="only these vehicle/sensor streams (either part may be *; vehicle/@vehicle: the "
+        "vehicle's fused tracks and its sensors' detections); default all",
     )
     p.add_argument("--detections", action="store_true", help="also subscribe to detections")
     p.add_argument(
