@@ -72,9 +72,10 @@ def read(path: Path) -> tuple[Any, list[tuple[Any, Any, Any]]]:
 
 
 def tracks_by_frame(messages: list[tuple[Any, Any, Any]]) -> dict[tuple[str, int], Any]:
+    """Each sensor's track frames (not a fused vehicle's, ``@vehicle``) by (sensor, seq)."""
     out = {}
     for _, channel, message in messages:
-        if channel.topic.endswith("/tracks"):
+        if channel.topic.endswith("/tracks") and not channel.topic.endswith("/@vehicle/tracks"):
             decoded = decode_track_frame(message.data)
             assert not isinstance(decoded, Rejection), decoded
             frame, arrays = decoded
@@ -251,6 +252,10 @@ def test_record_mcap_refuses_mistakes_in_one_line(
     base = ("record", "--format", "mcap", "--out", out)
     assert "--keys" in one_line_error(capsys, *base, "--keys", "fleet/*/*/tracks")
     assert "veh/a b" in one_line_error(capsys, *base, "--sensors", "veh/a b")
+    assert "veh/@other" in one_line_error(capsys, *base, "--sensors", "veh/@other")
+    assert "tracks only" in one_line_error(
+        capsys, *base, "--sensors", "veh/@vehicle", "--what", "detections,errors"
+    )
     assert "'pose'" in one_line_error(capsys, *base, "--what", "tracks,pose")
     assert "folder" in one_line_error(capsys, "record", "--format", "mcap", "--out", str(tmp_path))
     assert "mcap only" in one_line_error(

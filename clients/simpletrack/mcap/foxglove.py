@@ -1,8 +1,9 @@
 """The channels a recording carries for Foxglove next to each raw key (Foxglove decodes no
 msgpack): ``<key>/json``, the same message as JSON (bins as base64 strings), and, for detections
-and tracks, ``<key>/scene`` (a ``foxglove.SceneUpdate`` of the boxes) and
-``<key>/tf`` (a ``foxglove.FrameTransform`` of a detection frame's pose). None of these
-topics ends in a key leaf, so ``replay mcap`` never takes them for detections.
+and tracks (a fused vehicle's ``@vehicle`` tracks too), ``<key>/scene`` (a
+``foxglove.SceneUpdate`` of the boxes) and ``<key>/tf`` (a ``foxglove.FrameTransform`` of a
+detection frame's pose, or of its extrinsic). None of these topics ends in a key leaf, so
+``replay mcap`` never takes them for detections.
 
 The JSON channels' schema is the wire model's JSON Schema flattened into the subset Foxglove's
 JSON Schema reader takes: every property with one ``type`` (no ``$ref``, no ``anyOf`` with
@@ -20,7 +21,7 @@ from typing import Any
 
 import msgpack
 
-from simpletrack.mcap.format import SCHEMA_NAMES, schema_data
+from simpletrack.mcap.format import schema_data, schema_name
 from simpletrack.mcap.scene import SceneConverter
 from simpletrack.wire.header import MAX_BYTES
 from simpletrack.wire.keys import ERRORS
@@ -44,12 +45,12 @@ class Derived:
 
 @functools.cache
 def foxglove_schema(name: str) -> bytes:
-    """The JSON Schema text a Foxglove channel is described by, by schema name."""
+    """The JSON Schema text a Foxglove channel is described by, by schema name (a Foxglove
+    schema's, or a wire model's: its JSON Schema flattened)."""
     if name in (SCENE_SCHEMA, TF_SCHEMA):
         file = importlib.resources.files("simpletrack.mcap") / "foxglove_schemas"
         return (file / f"{name.removeprefix('foxglove.')}.json").read_bytes()
-    leaf = next(leaf for leaf, model in SCHEMA_NAMES.items() if model == name)
-    return json.dumps(flatten(json.loads(schema_data(leaf))), indent=2).encode()
+    return json.dumps(flatten(json.loads(schema_data(name))), indent=2).encode()
 
 
 def flatten(schema: dict[str, Any]) -> dict[str, Any]:
@@ -141,7 +142,7 @@ class FoxgloveChannels:
         out = []
         text = to_json(obj)
         if text is not None:
-            out.append(Derived(key + JSON_SUFFIX, SCHEMA_NAMES[leaf], text))
+            out.append(Derived(key + JSON_SUFFIX, schema_name(sensor, leaf), text))
         if leaf == ERRORS:
             return out
         scene, transform = self._scenes.convert(leaf, vehicle, sensor, obj)

@@ -3,10 +3,16 @@
 an arrow for the velocity (one second of travel). A detection frame's pose becomes a
 ``foxglove.FrameTransform`` from the world frame to the sensor's.
 
+A fused vehicle's tracks (``VehicleTrackFrame``, sensor ``@vehicle``) are drawn the same way,
+each labelled with its existence too (metadata: ``existence`` and the ``sensors`` that updated
+it). A detection frame's extrinsic (sensor->vehicle, a fused vehicle without poses) becomes a
+``FrameTransform`` from the vehicle's frame (its fused tracks' ``frame_id``) to the sensor's.
+
 Each update first deletes every entity of its topic stamped before it, so the 3D panel shows
 exactly the latest frame's boxes at any replay speed (a lifetime would be judged against
-Foxglove's clock, which is not the sensor's). Entity ids are fleet-unique:
-``<vehicle>/<sensor>/<track id>`` (detections: ``<vehicle>/<sensor>/d<row>``).
+Foxglove's clock, which is not the sensor's). Entity ids are the tracks' fleet-unique ids:
+``<vehicle>/<sensor>/<track id>``, ``<vehicle>/@vehicle/<track id>`` for fused tracks
+(detections: ``<vehicle>/<sensor>/d<row>``).
 
 Works on the plainly decoded msgpack map: a frame whose columns do not match its count gives no
 scene (the raw and JSON channels still hold it)."""
@@ -19,11 +25,20 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.wire.columns import DETECTION_SPECS, TRACK_SPECS, ColumnSpec, view_column
-from simpletrack.wire.keys import DETECTIONS
+from simpletrack.wire.columns import (
+    DETECTION_SPECS,
+    TRACK_SPECS,
+    VEHICLE_TRACK_SPECS,
+    ColumnSpec,
+    view_column,
+)
+from simpletrack.wire.keys import DETECTIONS, VEHICLE_STREAM
+from simpletrack.wire.track_ids import global_id
 
 # The service's default world frame (world_frame_id), until a track frame names the real one.
 DEFAULT_WORLD = "world"
+# Its default frame of a vehicle's fused tracks (fusion.vehicle_frame_id), likewise.
+DEFAULT_VEHICLE = "base_link"
 # Fill colours as in `simpletrack view`: confirmed green, tentative amber, coasting blue.
 STATE_COLORS = {
     0: (0.690, 0.490, 0.071),
@@ -87,10 +102,10 @@ def matrix_quaternion(m: list[list[float]]) -> dict[str, float]:
 
 
 def _columns(
-    table: object, specs: dict[str, ColumnSpec]
+    table: object, specs: dict[str, ColumnSpec], sensors: int = 1
 ) -> tuple[int, list[str], dict[str, npt.NDArray[np.generic]]] | None:
     """(count, classes, columns) of a box table, or None when any column is missing (but
-    optional) or of the wrong length."""
+    optional) or of the wrong length. A per-sensor column holds ``sensors`` values a row."""
     if not isinstance(table, dict):
         return None
     count, classes = table.get("count"), table.get("classes")
@@ -101,46 +116,76 @@ def _columns(
         buf = table.get(name)
         if buf is None and spec.optional:
             continue
-        if not isinstance(buf, bytes) or len(buf) != count * spec.row_bytes:
+        width = sensors if spec.per_sensor else 1
+        if not isinstance(buf, bytes) or len(buf) != count * spec.row_bytes * width:
             return None
-        columns[name] = view_column(buf, spec)
+        column = view_column(buf, spec)
+        columns[name] = column.reshape(count, sensors) if spec.per_sensor else column
     return count, [str(c) for c in classes], columns
+
+
+def _sensors(value: object) -> list[str] | None:
+    if not isinstance(value, list) or not value or not all(isinstance(s, str) for s in value):
+        return None
+    return value
 
 
 class SceneConverter:
     def __init__(self) -> None:
         self._world: dict[tuple[str, str], str] = {}
+        self._vehicle_frame: dict[str, str] = {}
 
     def convert(
         self, leaf: str, vehicle: str, sensor: str, frame: dict[str, Any]
     ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-        """(SceneUpdate, FrameTransform or None) of a detection or track frame's map."""
+        """(SceneUpdate, FrameTransform or None) of a detection, track or fused track frame's
+        map (``sensor`` ``@vehicle``: a VehicleTrackFrame)."""
         stamp, frame_id = frame.get("stamp_ns"), frame.get("frame_id")
         if type(stamp) is not int or stamp < 0 or not isinstance(frame_id, str):
             return None, None
         detections = leaf == DETECTIONS
         pose = _pose(frame.get("pose"))
-        if not detections and pose is not None:
+        fused = None
+        if sensor == VEHICLE_STREAM:
+            fused = _sensors(frame.get("sensors"))
+            if fused is None:
+                return None, None
+            if pose is not None:  # tracked in the world frame: its sensors' poses lead there
+                self._world.update({(vehicle, s): frame_id for s in fused})
+            else:  # in the vehicle's frame: its sensors' extrinsics lead there
+                self._vehicle_frame[vehicle] = frame_id
+        elif not detections and pose is not None:
             self._world[(vehicle, sensor)] = frame_id
+        specs = (
+            DETECTION_SPECS if detections else TRACK_SPECS if fused is None else VEHICLE_TRACK_SPECS
+        )
         table = _columns(
             frame.get("boxes" if detections else "tracks"),
-            DETECTION_SPECS if detections else TRACK_SPECS,
+            specs,
+            1 if fused is None else len(fused),
         )
         scene = None
         if table is not None:
-            entities = _entities(detections, vehicle, sensor, stamp, frame_id, *table)
+            entities = _entities(detections, vehicle, sensor, stamp, frame_id, *table, fused)
             deletion = {"timestamp": _time(stamp), "type": _DELETE_ALL, "id": ""}
             scene = {"deletions": [deletion], "entities": entities}
         transform = None
-        if detections and pose is not None:
-            rotation = [row[:3] for row in pose[:3]]
-            transform = {
-                "timestamp": _time(stamp),
-                "parent_frame_id": self._world.get((vehicle, sensor), DEFAULT_WORLD),
-                "child_frame_id": frame_id,
-                "translation": _xyz([row[3] for row in pose[:3]]),
-                "rotation": matrix_quaternion(rotation),
-            }
+        if detections:
+            extrinsic = _pose(frame.get("extrinsic")) if pose is None else None
+            parent = (
+                self._world.get((vehicle, sensor), DEFAULT_WORLD)
+                if pose is not None
+                else self._vehicle_frame.get(vehicle, DEFAULT_VEHICLE)
+            )
+            matrix = pose if pose is not None else extrinsic
+            if matrix is not None:
+                transform = {
+                    "timestamp": _time(stamp),
+                    "parent_frame_id": parent,
+                    "child_frame_id": frame_id,
+                    "translation": _xyz([row[3] for row in matrix[:3]]),
+                    "rotation": matrix_quaternion([row[:3] for row in matrix[:3]]),
+                }
         return scene, transform
 
 
@@ -163,12 +208,17 @@ def _entities(
     count: int,
     classes: list[str],
     cols: dict[str, npt.NDArray[np.generic]],
+    fused: list[str] | None = None,
 ) -> list[dict[str, Any]]:
+    """The boxes' entities; ``fused``: a VehicleTrackFrame's sensors (its tracks carry
+    ``existence`` and ``sensor_stamp_ns``, one column per sensor)."""
     center, size, yaw = cols["center"].tolist(), cols["size"].tolist(), cols["yaw"].tolist()
     class_index, score = cols["class_index"].tolist(), cols["score"].tolist()
     velocity = cols["velocity"].tolist() if "velocity" in cols else None
     ids = None if detections else cols["id"].tolist()
     states = None if detections else cols["state"].tolist()
+    existence = cols["existence"].tolist() if fused is not None else None
+    updated = cols["sensor_stamp_ns"].tolist() if fused is not None else None
     out = []
     for i in range(count):
         name = classes[class_index[i]] if 0 <= class_index[i] < len(classes) else "?"
@@ -180,9 +230,16 @@ def _entities(
                 DETECTION_COLOR,
             )
         else:
-            entity_id, label = f"{vehicle}/{sensor}/{ids[i]}", f"{ids[i]} {name}"
+            entity_id, label = global_id(vehicle, sensor, ids[i]), f"{ids[i]} {name}"
             rgb = STATE_COLORS.get(states[i], UNKNOWN_COLOR)
             metadata.append({"key": "state", "value": STATE_NAMES.get(states[i], str(states[i]))})
+        if existence is not None and updated is not None and fused is not None:
+            label += f" p={existence[i]:.2f}"
+            by = [s for s, t in zip(fused, updated[i], strict=True) if t >= 0]
+            metadata += [
+                {"key": "existence", "value": f"{existence[i]:.3f}"},
+                {"key": "sensors", "value": ",".join(by)},
+            ]
         c, s = center[i], size[i]
         top = {"x": c[0], "y": c[1], "z": c[2] + s[2] / 2 + 0.3}
         arrows = []

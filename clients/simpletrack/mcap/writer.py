@@ -1,6 +1,6 @@
-"""An MCAP recording of Zenoh samples: every sample of the chosen keys, its payload bytes
-unchanged (layout in format.py), and unless told not to, the same messages in forms Foxglove
-shows (foxglove.py). Used by ``simpletrack record --format mcap`` and ``simpletrack demo --mcap``."""
+"""An MCAP recording of Zenoh samples: every sample of the chosen keys (sensors' and fused
+vehicles'), its payload bytes unchanged (layout in format.py), and unless told not to, the
+same messages in forms Foxglove shows (foxglove.py). Used by ``simpletrack record --format mcap`` and ``simpletrack demo --mcap``."""
 
 from __future__ import annotations
 
@@ -18,14 +18,16 @@ from simpletrack.mcap.format import (
     MESSAGE_ENCODING,
     METADATA_NAME,
     SCHEMA_ENCODING,
-    SCHEMA_NAMES,
     TOOL,
+    recorded_keys,
     schema_data,
+    schema_name,
     split_key,
     version,
 )
 from simpletrack.mcap.foxglove import JSON_ENCODING, Derived, FoxgloveChannels, foxglove_schema
 from simpletrack.wire.header import peek_custody, peek_header
+from simpletrack.wire.keys import TRACKS
 
 _UINT32 = 1 << 32
 
@@ -81,8 +83,8 @@ class McapRecorder:
             self._channels[topic] = channel
         return channel
 
-    def _raw_channel(self, key: str, leaf: str) -> int:
-        return self._channel(key, MESSAGE_ENCODING, SCHEMA_NAMES[leaf], schema_data(leaf))
+    def _raw_channel(self, key: str, name: str) -> int:
+        return self._channel(key, MESSAGE_ENCODING, name, schema_data(name))
 
     def _derived_channel(self, d: Derived) -> int:
         return self._channel(d.topic, JSON_ENCODING, d.schema, foxglove_schema(d.schema))
@@ -110,7 +112,7 @@ class McapRecorder:
         if parts is None:
             return
         seq, stamp = peek_header(payload)
-        if parts[3] == "tracks" and seq is not None and stamp is not None:
+        if parts[3] == TRACKS and seq is not None and stamp is not None:
             # A fenced holder's message (an epoch below the stream's highest) is not what
             # planners got: not recorded (schemas/README.md, "Custody epoch").
             epoch = peek_custody(payload)[1]
@@ -126,7 +128,7 @@ class McapRecorder:
             if self._foxglove is not None
             else []
         )
-        channels = [(self._raw_channel(key, parts[3]), payload)]
+        channels = [(self._raw_channel(key, schema_name(parts[2], parts[3])), payload)]
         channels += [(self._derived_channel(d), d.data) for d in derived]
         for channel, data in channels:
             self._writer.add_message(
@@ -157,8 +159,9 @@ def subscribe(
     what: list[str],
     recorder: McapRecorder,
 ) -> list[zenoh.Subscriber[None]]:
+    """Subscribes the recorder to ``recorded_keys(prefix, sensors, what)``: a whole vehicle
+    or the fleet brings the fused vehicles' tracks (``<vehicle>/@vehicle/tracks``) too."""
     return [
-        session.declare_subscriber(f"{prefix}/{v}/{s}/{leaf}", recorder.on_sample)
-        for v, s in sensors
-        for leaf in what
+        session.declare_subscriber(key, recorder.on_sample)
+        for key in recorded_keys(prefix, sensors, what)
     ]

@@ -1,15 +1,19 @@
 """``simpletrack record``: write the tracks the service publishes to files, or every message of
-chosen sensors to an MCAP recording."""
+chosen sensors to an MCAP recording; fused vehicles' tracks (``<vehicle>/@vehicle/tracks``)
+with them when a whole vehicle or the fleet is recorded."""
 
 from __future__ import annotations
 
 import argparse
+import queue
 import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
+from typing import Any, cast
 
 import zenoh
 
@@ -21,14 +25,27 @@ from simpletrack.cli.common import (
     open_client_session,
 )
 from simpletrack.cli.errors import UserError
-from simpletrack.client.subscriber import TrackSubscriber
+from simpletrack.client.publisher import check_name
+from simpletrack.client.subscriber import (
+    TrackMessage,
+    TrackSubscriber,
+    VehicleTrackMessage,
+    VehicleTrackSubscriber,
+)
 from simpletrack.datasets.recording import JsonlWriter, KittiWriter, message_to_json
 from simpletrack.mcap.format import LEAVES
+from simpletrack.wire import TrackFrame
+from simpletrack.wire.keys import TRACKS, VEHICLE_STREAM
 
 EPILOG = f"""\
 formats:
   jsonl   OUT/tracks.jsonl, one line per track frame of any stream (layout in
-          clients/README.md); `simpletrack plot` reads it.
+          clients/README.md); `simpletrack plot` reads it. A fused vehicle's tracks
+          (<prefix>/<vehicle>/@vehicle/tracks) come along when the --keys' sensor chunk is
+          * (the default does): lines with sensor "@vehicle", "source" (the frame that
+          produced it), "sensors" (each fused sensor's condition), and per track its
+          "existence" and "updated_ns" (the sensors that updated it, with the stamps).
+          --keys 'fleet/veh01/@vehicle/tracks' records those alone.
   kitti   OUT/data_0/<sensor>.txt, KITTI tracking results, one file per stream named by its
           sensor id (what `replay kitti` uses: the sequence, e.g. 0000), boxes converted back
           to the KITTI camera frame, scores as logits. Give --calib (KITTI calib folder) for
@@ -36,11 +53,15 @@ formats:
   mcap    OUT is a file: every message on the --sensors' detections, tracks and errors
           keys (--what), payload bytes unchanged (message encoding msgpack, JSON Schema of
           each message), one channel per key; log time = receive time, publish time = the
-          frame's stamp. For Foxglove (which decodes no msgpack), each key also gets
-          <key>/json (the message as JSON, bins base64) and detections and tracks
-          <key>/scene (foxglove.SceneUpdate boxes for the 3D panel), and detections with a
-          pose <key>/tf (foxglove.FrameTransform); --no-foxglove writes only the raw
-          channels. `simpletrack replay mcap OUT` publishes its detections again;
+          frame's stamp. A whole vehicle (veh01/*) or the fleet (*/*, the default) brings
+          its fused vehicles' tracks, <prefix>/<vehicle>/@vehicle/tracks (VehicleTrackFrame),
+          when --what has tracks; veh01/@vehicle records those alone. For Foxglove (which
+          decodes no msgpack), each key also gets <key>/json (the message as JSON, bins
+          base64) and detections and tracks <key>/scene (foxglove.SceneUpdate boxes for the
+          3D panel; fused tracks labelled with their existence), and detections with a
+          pose or an extrinsic <key>/tf (foxglove.FrameTransform); --no-foxglove writes only
+          the raw channels. `simpletrack replay mcap OUT` publishes its detections again
+          (fused sensors' too; the fused tracks are the service's to make);
           `mcap info OUT` and Foxglove open it. --frames counts raw messages here.
 
 Stops on Ctrl-C or SIGTERM (exit 0, files complete), after --frames N frames, after
@@ -57,7 +78,8 @@ examples:
       --calib ../shared/data/kitti/calib --out out/kitti-zenoh --idle 5
   simpletrack eval kitti --results out/kitti-zenoh/data_0 --seqs 0000
 
-  # a field recording of one vehicle: what it sent, what came back, until Ctrl-C
+  # a field recording of one vehicle: what it sent, what came back (its fused tracks
+  # too), until Ctrl-C
   simpletrack record --format mcap --out out/veh01.mcap --sensors 'veh01/*'
 
   # one vehicle's lidar, 500 frames
@@ -75,7 +97,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     )
     p.add_argument(
         "--keys",
-        help="key expression of the track frames (default: <prefix>/*/*/tracks, the whole fleet)",
+        help="key expression of the track frames (default: <prefix>/*/*/tracks, the whole "
+        "fleet); a * sensor chunk brings the fused <vehicle>/@vehicle/tracks too",
     )
     p.add_argument("--out", type=Path, required=True, help="output folder (mcap: output file)")
     p.add_argument(
@@ -85,7 +108,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--sensors",
         nargs="+",
         metavar="VEHICLE/SENSOR",
-        help="mcap: the streams to record, * allowed (default */*: the whole fleet)",
+        help="mcap: the streams to record, * allowed (default */*: the whole fleet); "
+        "VEHICLE/* brings its fused tracks (VEHICLE/@vehicle: those alone)",
     )
     p.add_argument(
         "--what",
@@ -106,7 +130,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.set_defaults(func=run)
 
 
-def _check(args: argparse.Namespace) -> str:
+def _check(args: argparse.Namespace) -> tuple[str | None, str | None]:
+    """(sensors' tracks, fused vehicles' tracks) key expressions for jsonl and kitti."""
     prefix = check_prefix(args.prefix)
     if args.format == "mcap":
         if args.keys is not None:
@@ -122,6 +147,14 @@ def _check(args: argparse.Namespace) -> str:
         zenoh.KeyExpr(keys)
     except (zenoh.ZError, ValueError) as exc:
         raise UserError(f"--keys {keys!r} is not a valid key expression: {exc}") from None
+    sensors, fused = track_keys(keys)
+    if args.format == "kitti":
+        if sensors is None:
+            raise UserError(
+                f"--keys {keys!r}: KITTI results are a sensor's; record a vehicle's fused "
+                "tracks as jsonl or mcap"
+            )
+        fused = None
     for flag in ("frames", "duration", "idle"):
         value = getattr(args, flag)
         if value is not None and value <= 0:
@@ -133,11 +166,66 @@ def _check(args: argparse.Namespace) -> str:
             raise UserError(f"--calib {args.calib}: no such folder")
     if args.format != "mcap" and args.out.exists() and not args.out.is_dir():
         raise UserError(f"--out {args.out} exists and is not a folder")
-    return keys
+    return sensors, fused
+
+
+def track_keys(keys: str) -> tuple[str | None, str | None]:
+    """(sensors' tracks, fused vehicles' tracks) key expressions ``keys`` stands for. A ``*``
+    never matches the verbatim ``@vehicle`` chunk, so ``<prefix>/<vehicle>/*/tracks`` (a
+    vehicle's, or with ``*`` every vehicle's, sensors) also means
+    ``<prefix>/<vehicle>/@vehicle/tracks``; ``.../@vehicle/tracks`` means that alone."""
+    chunks = keys.split("/")
+    if len(chunks) < 4 or chunks[-1] != TRACKS:
+        return keys, None
+    if chunks[-2] == VEHICLE_STREAM:
+        return None, keys
+    if chunks[-2] == "*":
+        return keys, "/".join([*chunks[:-2], VEHICLE_STREAM, TRACKS])
+    return keys, None
+
+
+def vehicle_message_to_json(msg: VehicleTrackMessage) -> dict[str, Any]:
+    """A fused vehicle's tracks as a JSON lines object: a track frame's line (sensor
+    ``@vehicle``) with ``source`` (the sensor and seq of the frame that produced it),
+    ``sensors`` (each fused sensor's condition), and per track its ``existence`` and
+    ``updated_ns`` (each sensor that updated it: the stamp of its last update)."""
+    f = msg.frame
+    # message_to_json reads only header fields a VehicleTrackFrame shares with a TrackFrame.
+    obj = message_to_json(cast(TrackFrame, f), msg.tracks)
+    obj["sensor"] = VEHICLE_STREAM
+    obj["source"] = {"sensor": f.sensor, "seq": f.sensor_seq}
+    obj["sensors"] = {s: c.value for s, c in msg.sensor_state.items()}
+    existence = msg.existence.tolist()
+    for i, track in enumerate(obj["tracks"]):
+        track["existence"] = round(existence[i], 4)
+        track["updated_ns"] = msg.contributors(i)
+    return obj
+
+
+def _vehicle_subscriber(
+    session: zenoh.Session, expr: str, callback: Callable[[VehicleTrackMessage], None]
+) -> VehicleTrackSubscriber:
+    """A fused tracks subscriber for ``<head>/<vehicle>/@vehicle/tracks``; a vehicle chunk
+    that is a pattern (``veh0*``) subscribes to every vehicle, filtered in ``callback``."""
+    chunks = expr.split("/")
+    vehicle = chunks[-3]
+    try:
+        check_name("vehicle", vehicle)
+    except ValueError:
+        vehicle = "*"
+    want = zenoh.KeyExpr(expr)
+
+    def on_message(msg: VehicleTrackMessage) -> None:
+        if want.includes(zenoh.KeyExpr(msg.key)):
+            callback(msg)
+
+    return VehicleTrackSubscriber(
+        session, prefix="/".join(chunks[:-3]), vehicle=vehicle, callback=on_message
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    keys = _check(args)
+    sensor_keys, vehicle_keys = _check(args)
     if args.format == "mcap":
         return run_mcap(args)
     options = client_options(args)
@@ -156,9 +244,15 @@ def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     last = None
     reason = "interrupted"
+    received: queue.Queue[TrackMessage | VehicleTrackMessage] = queue.Queue()
     try:
-        sub = TrackSubscriber(session, key_expr=keys)
+        subs: list[TrackSubscriber | VehicleTrackSubscriber] = []
+        if sensor_keys is not None:
+            subs.append(TrackSubscriber(session, key_expr=sensor_keys, callback=received.put))
+        if vehicle_keys is not None:
+            subs.append(_vehicle_subscriber(session, vehicle_keys, received.put))
         if not args.quiet:
+            keys = " and ".join(k for k in (sensor_keys, vehicle_keys) if k is not None)
             print(
                 f"recording {keys} to {args.out} ({args.format}); Ctrl-C to stop",
                 file=sys.stderr,
@@ -172,24 +266,30 @@ def run(args: argparse.Namespace) -> int:
             if args.idle is not None and last is not None and now - last >= args.idle:
                 reason = f"idle for {args.idle:g} s"
                 break
-            msg = sub.recv(timeout=0.2)
-            if msg is None:
+            try:
+                msg = received.get(timeout=0.2)
+            except queue.Empty:
                 continue
             last = time.monotonic()
-            if jsonl is not None:
-                jsonl.write(message_to_json(msg.frame, msg.tracks))
-            if kitti is not None:
-                try:
-                    kitti.write(msg.frame, msg.tracks)
-                except FileNotFoundError as exc:
-                    raise UserError(str(exc)) from None
+            if isinstance(msg, VehicleTrackMessage):
+                if jsonl is not None:
+                    jsonl.write(vehicle_message_to_json(msg))
+            else:
+                if jsonl is not None:
+                    jsonl.write(message_to_json(msg.frame, msg.tracks))
+                if kitti is not None:
+                    try:
+                        kitti.write(msg.frame, msg.tracks)
+                    except FileNotFoundError as exc:
+                        raise UserError(str(exc)) from None
             frames += 1
             streams.add((msg.vehicle, msg.sensor))
             if args.frames is not None and frames >= args.frames:
                 reason = f"{frames} frames"
                 break
-        invalid = sub.invalid
-        sub.close()
+        invalid = sum(sub.invalid for sub in subs)
+        for sub in subs:
+            sub.close()
     finally:
         session.close()  # type: ignore[no-untyped-call]
         paths = kitti.close() if kitti is not None else []
@@ -209,10 +309,16 @@ def run(args: argparse.Namespace) -> int:
 
 def run_mcap(args: argparse.Namespace) -> int:
     from simpletrack.cli.record_mcap import parse_sensors, parse_what
+    from simpletrack.mcap.format import recorded_keys
     from simpletrack.mcap.writer import McapRecorder, subscribe
 
     sensors = parse_sensors(args.sensors)
     what = parse_what(args.what, LEAVES)
+    if not recorded_keys(args.prefix, sensors, what):
+        raise UserError(
+            f"--sensors {' '.join(args.sensors)}: a fused vehicle's stream has tracks only; "
+            "--what has no tracks"
+        )
     options = client_options(args)
     if not args.out.parent.is_dir():
         raise UserError(f"--out {args.out}: no folder {args.out.parent}")
@@ -234,10 +340,9 @@ def run_mcap(args: argparse.Namespace) -> int:
                 raise UserError(f"--out {args.out}: {exc.strerror}") from None
             subs = subscribe(session, args.prefix, sensors, what, recorder)
             if not args.quiet:
-                streams = " ".join(f"{v}/{s}" for v, s in sensors)
+                keys = " ".join(recorded_keys(args.prefix, sensors, what))
                 print(
-                    f"recording {','.join(what)} of {streams} under {args.prefix} to {args.out} "
-                    "(mcap); Ctrl-C to stop",
+                    f"recording {keys} to {args.out} (mcap); Ctrl-C to stop",
                     file=sys.stderr,
                     flush=True,
                 )

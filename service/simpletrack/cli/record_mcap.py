@@ -5,20 +5,24 @@ from __future__ import annotations
 
 from simpletrack.cli.errors import UserError
 from simpletrack.client.publisher import check_name
+from simpletrack.wire.keys import VEHICLE_STREAM
 
 
 def parse_sensors(values: list[str] | None) -> list[tuple[str, str]]:
-    """``vehicle/sensor`` pairs (``*`` allowed in either place), comma- or space-separated."""
+    """``vehicle/sensor`` pairs (``*`` allowed in either place), comma- or space-separated;
+    ``vehicle/@vehicle`` names a fused vehicle's tracks stream."""
     items = [s.strip() for v in values or ["*/*"] for s in v.split(",") if s.strip()]
     out = []
     for item in items:
         vehicle, _, sensor = item.partition("/")
         try:
             for kind, name in (("vehicle", vehicle), ("sensor", sensor)):
-                if name != "*":
+                if name != "*" and not (kind == "sensor" and name == VEHICLE_STREAM):
                     check_name(kind, name)
         except ValueError as exc:
-            raise UserError(f"--sensors {item!r}: expected vehicle/sensor; {exc}") from None
+            raise UserError(
+                f"--sensors {item!r}: expected vehicle/sensor or vehicle/{VEHICLE_STREAM}; {exc}"
+            ) from None
         out.append((vehicle, sensor))
     return out
 

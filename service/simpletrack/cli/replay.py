@@ -35,7 +35,11 @@ without detections are sent too, so the tracker ages its tracks exactly as offli
 
 mcap: `replay mcap FILE.mcap` publishes the detections channels of a `simpletrack record
 --format mcap` recording, payload bytes as recorded (vehicle, sensor, seq and stamps
-included), on their recorded keys, or under another --prefix. --sensors picks streams.
+included; a fused sensor's extrinsic or pose too), on their recorded keys, or under another
+--prefix. --sensors picks streams. A fused vehicle's recorded tracks
+(<vehicle>/@vehicle/tracks) are not sent: a service that fuses the vehicle makes them again
+from the detections, and a fused sensor's frame counts as answered once the vehicle's tracks
+reach its stamp.
 --rate recorded (the default) keeps the recorded pace (receive time differences); a number is
 each stream's frames per second.
 
@@ -214,6 +218,18 @@ class Answers:
     tracked: int = 0
     errors: Counter[str] = field(default_factory=Counter)
     last_answer: float = field(default_factory=time.monotonic)
+    fused: int = 0  # of ``tracked``: answered by a fused vehicle's tracks
+
+    def on_fused(self, keys: list[tuple[str, str, int]]) -> None:
+        """Frames of fused sensors a vehicle's tracks message answered (replay_mcap.py)."""
+        with self.cond:
+            for key in keys:
+                if key not in self.answered:
+                    self.answered.add(key)
+                    self.tracked += 1
+                    self.fused += 1
+            self.last_answer = time.monotonic()
+            self.cond.notify_all()
 
     def on_tracks(self, msg: TrackMessage) -> None:
         with self.cond:

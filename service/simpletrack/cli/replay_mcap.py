@@ -1,10 +1,18 @@
 """``simpletrack replay mcap FILE``: publish a recording's detection payloads, bytes as
 recorded, back onto Zenoh at the recorded pace, a chosen rate, or as fast as the service
-keeps up."""
+keeps up.
+
+A recording of a fused vehicle holds its sensors' detections (with their extrinsics or poses)
+and its fused tracks (``<vehicle>/@vehicle/tracks``). Only the detections are sent: the
+service makes the fused tracks again. A fused sensor's frame gets no answer of its own (the
+vehicle publishes one message per frame it applies, in stamp order; a frame it only watches or
+re-processes gets none): it counts as answered once the vehicle's tracks reach its stamp
+(``Watermarks``)."""
 
 from __future__ import annotations
 
 import argparse
+import heapq
 import sys
 import time
 from collections.abc import Callable
@@ -19,12 +27,16 @@ from simpletrack.cli.errors import UserError
 from simpletrack.cli.record_mcap import parse_sensors
 from simpletrack.cli.replay import Answers, _progress, parse_rate
 from simpletrack.client.publisher import CONGESTION, MSGPACK
-from simpletrack.client.subscriber import TrackSubscriber
+from simpletrack.client.subscriber import (
+    TrackSubscriber,
+    VehicleTrackMessage,
+    VehicleTrackSubscriber,
+)
 from simpletrack.mcap.format import MESSAGE_ENCODING, split_key
 from simpletrack.session import Congestion
 from simpletrack.wire import FrameError, Rejection, decode_message
 from simpletrack.wire.header import peek_header
-from simpletrack.wire.keys import DETECTIONS, Keys
+from simpletrack.wire.keys import DETECTIONS, VEHICLE_STREAM, Keys
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,11 +47,13 @@ class Recorded:
     log_time: int
     seq: int | None
     payload: bytes
+    stamp_ns: int | None = None
 
 
 def load(path: Path, sensors: list[tuple[str, str]] | None) -> list[Recorded]:
     """Every detections message of the recording (of ``sensors`` when given), in log time
-    order. Read whole before anything is sent, so a damaged file fails before the first frame."""
+    order; never a fused vehicle's tracks (``@vehicle``), its twins or any other channel. Read
+    whole before anything is sent, so a damaged file fails before the first frame."""
     if not path.is_file():
         raise UserError(f"{path}: no such file")
     out: list[Recorded] = []
@@ -52,8 +66,8 @@ def load(path: Path, sensors: list[tuple[str, str]] | None) -> list[Recorded]:
                     continue
                 if channel.message_encoding != MESSAGE_ENCODING:
                     continue
-                seq, _ = peek_header(message.data)
-                out.append(Recorded(*parts[:3], message.log_time, seq, message.data))
+                seq, stamp = peek_header(message.data)
+                out.append(Recorded(*parts[:3], message.log_time, seq, message.data, stamp))
     except UserError:
         raise
     except Exception as exc:  # the reader raises many kinds (McapError, struct, zstd, EOF)
@@ -73,6 +87,42 @@ def load(path: Path, sensors: list[tuple[str, str]] | None) -> list[Recorded]:
 
 def _match(pattern: str, name: str) -> bool:
     return pattern in ("*", name)
+
+
+class Watermarks:
+    """Which sent frames of fused sensors a vehicle's tracks answered. A vehicle applies its
+    fused sensors' frames in stamp order and publishes one message per frame applied, stamped
+    with it: once a message at stamp T came, every frame of its ``sensors`` stamped at or
+    before T has been taken (applied, watched, or re-processed into place), though most get
+    no message of their own. Frames of vehicles or sensors not (yet) heard fused wait here;
+    a sensor tracked on its own is answered by its own tracks instead."""
+
+    def __init__(self) -> None:
+        # (vehicle, sensor) -> heap of (stamp_ns, seq) of frames sent and not yet passed.
+        self._pending: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        # vehicle -> (the highest stamp its tracks reached, its fused sensors)
+        self._marks: dict[str, tuple[int, frozenset[str]]] = {}
+
+    def sent(self, vehicle: str, sensor: str, seq: int, stamp_ns: int) -> bool:
+        """Records a frame going out; True when the vehicle's tracks already passed its stamp
+        (a frame the vehicle will re-process, or refuse as late: no message of its own)."""
+        mark = self._marks.get(vehicle)
+        if mark is not None and sensor in mark[1] and stamp_ns <= mark[0]:
+            return True
+        heapq.heappush(self._pending.setdefault((vehicle, sensor), []), (stamp_ns, seq))
+        return False
+
+    def heard(self, vehicle: str, sensors: list[str], stamp_ns: int) -> list[tuple[str, str, int]]:
+        """A vehicle's tracks message at ``stamp_ns``: the (vehicle, sensor, seq) of the frames
+        it answers."""
+        mark = max(stamp_ns, self._marks.get(vehicle, (stamp_ns, frozenset()))[0])
+        self._marks[vehicle] = (mark, frozenset(sensors))
+        out = []
+        for sensor in sensors:
+            heap = self._pending.get((vehicle, sensor))
+            while heap and heap[0][0] <= mark:
+                out.append((vehicle, sensor, heapq.heappop(heap)[1]))
+        return out
 
 
 def schedule(frames: list[Recorded], rate: float | str | None) -> list[tuple[float, Recorded]]:
@@ -108,6 +158,12 @@ def run_mcap(args: argparse.Namespace) -> int:
         raise UserError(f"--window {args.window} must be at least 1")
     prefix = check_prefix(args.prefix) if args.prefix is not None else None
     sensors = parse_sensors(args.sensors) if args.sensors is not None else None
+    for v, s in sensors or []:
+        if s == VEHICLE_STREAM:
+            raise UserError(
+                f"--sensors {v}/{s}: a fused vehicle's tracks are not replayed (the service "
+                f"makes them again from its sensors' detections: --sensors '{v}/*')"
+            )
     text = args.rate.strip().lower() if args.rate is not None else "recorded"
     rate = "recorded" if text == "recorded" else parse_rate(args.rate, 0.0)
     frames = load(args.file, sensors)
@@ -117,14 +173,24 @@ def run_mcap(args: argparse.Namespace) -> int:
 
     session = open_client_session(options)
     answers = Answers()
+    marks = Watermarks()
+
+    def on_vehicle(msg: VehicleTrackMessage) -> None:
+        with answers.cond:  # one lock for the marks and the answers: no frame missed between
+            answered = marks.heard(msg.vehicle, msg.sensors, msg.stamp_ns)
+            answers.on_fused(answered)
+
     publishers: dict[str, zenoh.Publisher] = {}
     sent = 0
     started = time.monotonic()
     outcome = "done"
     try:
         prefixes = sorted({prefix or r.prefix for r in frames})
-        listeners = [
+        listeners: list[TrackSubscriber | VehicleTrackSubscriber] = [
             TrackSubscriber(session, prefix=p, callback=answers.on_tracks) for p in prefixes
+        ]
+        listeners += [
+            VehicleTrackSubscriber(session, prefix=p, callback=on_vehicle) for p in prefixes
         ]
         error_subs = [
             session.declare_subscriber(Keys(p).errors("*", "*"), _on_error(answers))
@@ -146,6 +212,10 @@ def run_mcap(args: argparse.Namespace) -> int:
                 if not answers.wait_below(sent, args.window, args.answer_timeout):
                     outcome = "service stopped answering"
                     break
+                if r.seq is not None and r.stamp_ns is not None:
+                    with answers.cond:
+                        if marks.sent(r.vehicle, r.sensor, r.seq, r.stamp_ns):
+                            answers.on_fused([(r.vehicle, r.sensor, r.seq)])
                 publishers[Keys(prefix or r.prefix).detections(r.vehicle, r.sensor)].put(r.payload)
                 sent += 1
                 advance(1)
@@ -170,8 +240,9 @@ def run_mcap(args: argparse.Namespace) -> int:
     streams = len({(r.prefix, r.vehicle, r.sensor) for r in frames})
     print(
         f"replay mcap: {outcome}: {streams} stream(s), {sent}/{len(plan)} frames sent in "
-        f"{elapsed:.1f} s ({sent / max(elapsed, 1e-9):.1f} frames/s), {answers.tracked} tracked, "
-        f"{errors} refused, {max(sent - answered, 0)} unanswered"
+        f"{elapsed:.1f} s ({sent / max(elapsed, 1e-9):.1f} frames/s), {answers.tracked} tracked"
+        + (f" ({answers.fused} into fused vehicles' tracks)" if answers.fused else "")
+        + f", {errors} refused, {max(sent - answered, 0)} unanswered"
     )
     for reason, n in sorted(answers.errors.items()):
         print(f"  refused {n} x {reason}")
