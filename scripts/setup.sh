@@ -6,7 +6,7 @@ PY="${PYTHON:-python3}"
 if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
-extras="service,plot,test"
+extras="service,plot,test,foxglove"
 if [ "${CI:-}" = "true" ]; then extras="$extras,deploy-lint"; fi
 stamp=.venv/.installed-${extras//,/-}
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then

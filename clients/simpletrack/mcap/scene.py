@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from simpletrack.wire.columns import (
     DETECTION_SPECS,
+    TRACK_COLUMNS_OF,
     TRACK_SPECS,
     VEHICLE_TRACK_SPECS,
     ColumnSpec,
@@ -159,6 +160,9 @@ class SceneConverter:
         specs = (
             DETECTION_SPECS if detections else TRACK_SPECS if fused is None else VEHICLE_TRACK_SPECS
         )
+        version = frame.get("schema_version")
+        if specs is TRACK_SPECS and type(version) is int and version in TRACK_COLUMNS_OF:
+            specs = {c.name: c for c in TRACK_COLUMNS_OF[version]}  # version 1: no ages in s
         table = _columns(
             frame.get("boxes" if detections else "tracks"),
             specs,
