@@ -1,4 +1,5 @@
-"""``simpletrack track nuscenes``: track detection files offline and write JSON lines."""
+"""``simpletrack track nuscenes``: track detection files offline and write JSON lines, or a
+nuScenes detection-results JSON into a nuScenes tracking submission (docs/NUSCENES.md)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,15 @@ from typing import Any
 from simpletrack.cli.errors import UserError
 from simpletrack.core.config import TieOrder, VerticalOverlap, preset
 from simpletrack.datasets.nuscenes import scene_files
+from simpletrack.datasets.nuscenes_json import (
+    FormatError,
+    check_tracking_classes,
+    read_detections,
+    read_samples,
+    scenes_to_track,
+    track_scenes,
+    write_submission,
+)
 from simpletrack.eval.parity import compare, group_rows
 from simpletrack.eval.track_nuscenes import track_scene
 
@@ -20,6 +30,8 @@ EPILOG = """examples:
   simpletrack track nuscenes --data ../shared/data/nuscenes/centerpoint_val --out out/nusc.jsonl
   simpletrack track nuscenes --scenes scene-0003,scene-0012 --vertical-overlap reference \\
       --reference ../shared/data/reference/nuscenes/simpletrack_nuscenes_val.jsonl.gz
+  simpletrack track nuscenes --detections results_val.json \\
+      --samples /data/nuscenes/v1.0-trainval --out out/tracking_val.json
 """
 
 
@@ -44,7 +56,23 @@ def register(sub: Any) -> None:
         default="stable",
         help="order of equal-score boxes in NMS (reference: the reference code's NumPy order)",
     )
-    p.add_argument("--out", type=Path, help="JSON lines output (one line per output box)")
+    p.add_argument(
+        "--detections",
+        type=Path,
+        help="a nuScenes detection-results JSON to track instead of --data (needs --samples; "
+        "--out is then a nuScenes tracking-submission JSON; docs/NUSCENES.md)",
+    )
+    p.add_argument(
+        "--samples",
+        type=Path,
+        help="with --detections: nuScenes' sample table (sample.json, or its folder such as "
+        "<dataroot>/v1.0-trainval), which gives each sample's scene and timestamp",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="JSON lines output (one line per output box); with --detections the submission",
+    )
     p.add_argument(
         "--reference", type=Path, help="reference JSON lines (.gz ok): print parity against it"
     )
@@ -61,6 +89,10 @@ def _read_jsonl(path: Path, scenes: set[str]) -> Iterator[dict[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.detections is not None:
+        return _run_detections(args)
+    if args.samples is not None:
+        raise UserError("--samples goes with --detections")
     if not args.data.is_dir():
         raise UserError(f"--data {args.data} is not a directory")
     try:
@@ -98,4 +130,56 @@ def run(args: argparse.Namespace) -> int:
         ref = group_rows(_read_jsonl(args.reference, {p.stem for p in files}))
         report = compare(ref, group_rows(rows))
         print(json.dumps(report.as_dict(), indent=1))
+    return 0
+
+
+def _run_detections(args: argparse.Namespace) -> int:
+    """nuScenes detection results in, a nuScenes tracking submission out."""
+    if args.samples is None:
+        raise UserError(
+            "--detections needs --samples: nuScenes' sample table (sample.json, or its folder "
+            "such as <dataroot>/v1.0-trainval), which gives each sample's scene and timestamp "
+            "(a results JSON has neither)"
+        )
+    if args.out is None:
+        raise UserError("--detections needs --out (the tracking submission JSON to write)")
+    if args.reference is not None:
+        raise UserError(
+            "--reference compares JSON lines from --data; it does not go with --detections"
+        )
+    try:
+        config = preset(args.preset).with_overrides(
+            vertical_overlap=args.vertical_overlap, tie_order=args.tie_order
+        )
+        check_tracking_classes(config)
+        table = read_samples(args.samples)
+        detections = read_detections(args.detections)
+        scenes = scenes_to_track(detections, table, [s for s in args.scenes.split(",") if s])
+    except (FormatError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    if not scenes:
+        raise UserError(f"--detections {args.detections} has no samples")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    tmp = args.out.with_name(args.out.name + ".partial")
+    try:
+        with tmp.open("w") as f:
+            n_samples, n_boxes, dropped = write_submission(
+                f, detections.meta, track_scenes(detections, scenes, config)
+            )
+        tmp.replace(args.out)
+    except FormatError as exc:
+        tmp.unlink(missing_ok=True)
+        raise UserError(str(exc)) from None
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise UserError(f"--out {args.out}: {exc.strerror or exc}") from None
+    total = time.perf_counter() - t0
+    print(
+        f"tracked {len(scenes)} scenes, {n_samples} samples, {n_boxes} output boxes in "
+        f"{total:.1f} s ({n_samples / total if total else 0:.0f} samples/s)"
+    )
+    if dropped:
+        print(f"left out {dropped} lowest-scored boxes over 500 in a sample (the format's limit)")
+    print(f"wrote {args.out} (nuScenes tracking submission)")
     return 0
