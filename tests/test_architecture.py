@@ -48,6 +48,7 @@ MAY_IMPORT: dict[str, set[str]] = {
         "server",
         "view",
         "mcap",
+        "ros2",
     },
     "mcap": {"wire", "client"},  # recordings: the wire's schemas and keys, no service
     "bench": {"core", "wire", "session", "client", "datasets", "eval", "spawn", "server", "sim"},

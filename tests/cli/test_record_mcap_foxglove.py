@@ -1,11 +1,12 @@
 """What Foxglove gets from ``record --format mcap``: a JSON twin of every raw channel (the
-msgpack map, bins as base64) under a schema Foxglove's JSON Schema reader takes, SceneUpdate
-boxes of every published track and detection, and the detection pose as a FrameTransform; and
-``replay mcap`` still sends only the raw detections."""
+message with its box table as one object of numbers per box, for the Plot panel) under a schema
+Foxglove's JSON Schema reader takes, SceneUpdate boxes of every published track and detection,
+and the detection pose as a FrameTransform; and ``replay mcap`` still sends only the raw
+detections. The same run's ``--ros2`` bag is read back with rosbags
+(tests/cli/test_record_mcap_ros2.py has the checks)."""
 
 from __future__ import annotations
 
-import base64
 import dataclasses
 import json
 import math
@@ -17,12 +18,15 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from mcap.reader import make_reader
 
 from simpletrack.cli.replay_mcap import load
 from simpletrack.mcap.foxglove import FoxgloveChannels, flatten, foxglove_schema
 from simpletrack.session import open_session
 from simpletrack.wire import Rejection, decode_track_frame, encode_detection_frame
 from tests.cli.test_record_mcap import kill_leftovers, read, record, service
+from tests.mcap.ros2_checks import DETECTED, TRACKED, check_detected, check_tracked, read_bag
+from tests.mcap.twins import check_twin
 from tests.service_helpers import ROOT, Client, free_port, moving_cars, stamp, wait_for
 
 FRAMES = 6
@@ -55,7 +59,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     try:
         rec = record(
             "--format", "mcap", "--out", str(out), "--connect", svc.endpoint, "--listen", listen,
-            "--what", "detections,tracks", "--frames", str(2 * FRAMES),
+            "--what", "detections,tracks", "--frames", str(2 * FRAMES), "--ros2",
         )  # fmt: skip
         # Zenoh peers route nobody else's samples: the vehicle reaches the recorder directly.
         with open_session(mode="peer", connect=[svc.endpoint, listen]) as vehicle:
@@ -74,6 +78,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
             code, stdout, err = rec.wait()
         assert code == 0, err
         assert f"{2 * FRAMES} messages" in stdout, stdout
+        assert f"{2 * FRAMES} ROS 2 messages to {tmp / 'fox.ros2.mcap'}" in stdout, stdout
     finally:
         kill_leftovers()
         planner.close()
@@ -86,16 +91,6 @@ def by_topic(messages: list[tuple[Any, Any, Any]]) -> dict[str, list[Any]]:
     for _, channel, message in messages:
         out.setdefault(channel.topic, []).append(message)
     return out
-
-
-def with_base64(node: Any) -> Any:
-    if isinstance(node, bytes):
-        return base64.b64encode(node).decode()
-    if isinstance(node, dict):
-        return {k: with_base64(v) for k, v in node.items()}
-    if isinstance(node, list):
-        return [with_base64(v) for v in node]
-    return node
 
 
 def validate(value: Any, schema: dict[str, Any], path: str = "$") -> None:
@@ -152,41 +147,83 @@ def foxglove_reads(schema: dict[str, Any], path: str = "$") -> list[str]:
     return problems
 
 
-def test_json_twins_hold_the_raw_messages(recorded: Path) -> None:
+def test_json_twins_hold_the_messages_as_plottable_rows(recorded: Path) -> None:
     (summary, metadata), messages = read(recorded)
     assert metadata["simpletrack"]["foxglove"] == "true"
+    assert metadata["simpletrack"]["ros2"] == "fox.ros2.mcap"
     topics = by_topic(messages)
     raw_keys = {c.topic for c in summary.channels.values() if c.message_encoding == "msgpack"}
     assert raw_keys == {"fleet/veh/lidar/detections", "fleet/veh/lidar/tracks"}
     channels = {c.topic: c for c in summary.channels.values()}
-    for key in raw_keys:
+    for key, table in (
+        ("fleet/veh/lidar/detections", "boxes"),
+        ("fleet/veh/lidar/tracks", "tracks"),
+    ):
         twin = channels[f"{key}/json"]
         assert twin.message_encoding == "json"
         schema = summary.schemas[twin.schema_id]
         assert schema.encoding == "jsonschema"
         assert schema.name == summary.schemas[channels[key].schema_id].name
+        fields = json.loads(schema.data)["properties"][table]["items"]["properties"]
         assert len(topics[f"{key}/json"]) == len(topics[key]) == FRAMES
         for raw, js in zip(topics[key], topics[f"{key}/json"], strict=True):
-            assert json.loads(js.data) == with_base64(msgpack.unpackb(raw.data))
+            value = json.loads(js.data)
+            check_twin(value, raw.data, schema.name)
+            assert all(set(row) <= set(fields) for row in value[table])
             assert (js.log_time, js.publish_time, js.sequence) == (
                 raw.log_time,
                 raw.publish_time,
                 raw.sequence,
             )
+    # What the README's Plot path picks: fleet/veh/lidar/tracks/json.tracks[:]{id==0}.x, one
+    # number per message, the car driving along +x at 10 m/s in the world frame (the pose).
+    xs = [
+        [t["x"] for t in json.loads(m.data)["tracks"] if t["id"] == 0]
+        for m in topics["fleet/veh/lidar/tracks/json"]
+    ]
+    assert all(len(x) == 1 for x in xs)
+    steps = np.diff([x[0] for x in xs])
+    assert np.allclose(steps, math.cos(YAW), atol=0.05), steps  # 1 m a frame, turned by YAW
 
 
 def test_json_schemas_are_ones_foxglove_reads() -> None:
-    for name in ("DetectionFrame", "TrackFrame", "FrameError"):
+    for name, table in (
+        ("DetectionFrame", "boxes"),
+        ("TrackFrame", "tracks"),
+        ("FrameError", None),
+    ):
         wire = json.loads((ROOT / "schemas" / "json" / f"{name}.schema.json").read_bytes())
         assert foxglove_reads(wire), name  # $ref and anyOf-with-null: Foxglove gives up
         flat = json.loads(foxglove_schema(name))
         assert foxglove_reads(flat) == [], name
-        assert flat == flatten(wire) and "$ref" not in json.dumps(flat)
-        # Nothing lost but the null alternative: every field and its encoding is still there.
-        assert set(flat["properties"]) == set(wire["properties"])
-    flat = json.loads(foxglove_schema("TrackFrame"))
-    assert flat["properties"]["pose"]["type"] == "array"
-    assert flat["properties"]["tracks"]["properties"]["center"]["contentEncoding"] == "base64"
+        assert "$ref" not in json.dumps(flat)
+        plain = flatten(wire)
+        if table is None:
+            assert flat == plain
+            continue
+        # Nothing lost but the null alternative: every other field is the wire's; the table is
+        # an array of rows with a field for each column's values.
+        assert set(flat["properties"]) == set(wire["properties"]) | {"count", "classes"}
+        others = [k for k in plain["properties"] if k != table]
+        assert {k: flat["properties"][k] for k in others} == {
+            k: plain["properties"][k] for k in others
+        }
+        rows = flat["properties"][table]
+        assert rows["type"] == "array" and rows["items"]["type"] == "object"
+        fields = rows["items"]["properties"]
+        for field in ("class", "class_index", "x", "y", "z", "length", "width", "height", "yaw"):
+            assert field in fields, (name, field)
+        assert fields["x"]["type"] == "number" and fields["class"]["type"] == "string"
+        assert not any("contentEncoding" in json.dumps(f) for f in fields.values())
+    fields = json.loads(foxglove_schema("TrackFrame"))["properties"]["tracks"]["items"]
+    assert fields["properties"]["id"]["type"] == "integer"
+    assert fields["properties"]["covariance"] == {
+        "type": "array",
+        "items": {"type": "number"},
+        "description": fields["properties"]["covariance"]["description"],
+    }
+    for field in ("vx", "vy", "vz", "speed", "score", "state", "state_name", "age_s"):
+        assert field in fields["properties"], field
     for name in ("foxglove.SceneUpdate", "foxglove.FrameTransform"):
         assert foxglove_reads(json.loads(foxglove_schema(name))) == [], name
 
@@ -281,12 +318,46 @@ def test_damaged_payloads_add_no_broken_twins() -> None:
         vehicle="veh", sensor="lidar", seq=0, stamp_ns=5, frame_id="lidar", boxes=cars(0)
     )
     frame = msgpack.unpackb(good)
-    frame["boxes"]["count"] = 3  # columns hold 2 rows
-    derived = channels.derive(key, "detections", "veh", "lidar", msgpack.packb(frame))
-    assert [d.topic for d in derived] == [f"{key}/json"]  # shown as JSON, not drawn
-    assert json.loads(derived[0].data)["boxes"]["count"] == 3
+    frame["boxes"]["count"] = 3  # columns hold 2 rows: no rows to show, nothing to draw
+    assert channels.derive(key, "detections", "veh", "lidar", msgpack.packb(frame)) == []
     frame["boxes"]["count"] = 2
     frame["pose"] = [math.nan] * 16
     derived = channels.derive(key, "detections", "veh", "lidar", msgpack.packb(frame))
     assert [d.topic for d in derived] == [f"{key}/json", f"{key}/scene"]  # no transform of NaN
     assert json.loads(derived[0].data)["pose"] == [None] * 16  # JSON has no NaN
+    center = np.frombuffer(frame["boxes"]["center"], "<f4").copy()
+    center[0] = math.nan
+    frame["boxes"]["center"] = center.tobytes()
+    derived = channels.derive(key, "detections", "veh", "lidar", msgpack.packb(frame))
+    assert json.loads(derived[0].data)["boxes"][0]["x"] is None  # a NaN box: null, still a row
+
+
+def test_the_ros2_bag_holds_every_frame_as_autoware_messages(recorded: Path) -> None:
+    """``--ros2`` of a real service's run, read by rosbags: every TrackedObjects decodes and
+    matches the msgpack channel's tracks (the documented uuid, positions within 1e-6), every
+    DetectedObjects the detections; labels by the service's preset (kitti)."""
+    bag = recorded.with_name("fox.ros2.mcap")
+    with open(bag, "rb") as f:
+        assert make_reader(f).get_header().profile == "ros2"
+    raw = by_topic(read(recorded)[1])
+    got = read_bag(bag)
+    topics = {
+        "/simpletrack/veh/lidar/detected_objects": "fleet/veh/lidar/detections",
+        "/simpletrack/veh/lidar/tracked_objects": "fleet/veh/lidar/tracks",
+    }
+    assert {m.topic for m in got} == set(topics)
+    objects = 0
+    for topic, key in topics.items():
+        mine = [m for m in got if m.topic == topic]
+        assert len(mine) == len(raw[key]) == FRAMES
+        for message, recorded_message in zip(mine, raw[key], strict=True):
+            assert message.log_time == recorded_message.log_time
+            if key.endswith("/tracks"):
+                assert message.msgtype == TRACKED
+                objects += check_tracked(
+                    message.msg, recorded_message.data, "veh", "lidar", "kitti"
+                )
+            else:
+                assert message.msgtype == DETECTED
+                assert check_detected(message.msg, recorded_message.data, "kitti") == 2
+    assert objects > FRAMES  # the two cars were tracked

@@ -27,9 +27,9 @@ from tests.cli.test_record_mcap_foxglove import (
     VENDORED,
     foxglove_reads,
     validate,
-    with_base64,
 )
 from tests.mcap.test_writer import _Payload, _Sample
+from tests.mcap.twins import check_twin
 from tests.service_helpers import ROOT, moving_cars, stamp
 
 VEHICLE_KEY = "fleet/veh01/@vehicle/tracks"
@@ -186,26 +186,34 @@ def test_fused_tracks_round_trip_byte_for_byte_under_their_schema(recorded: Path
         "fleet/veh01/camera/detections/scene",
         "fleet/veh01/camera/detections/tf",
     }
-    # The JSON twin: the same message, under the flattened VehicleTrackFrame schema.
+    # The JSON twin: the message with a row of numbers per fused track (existence and the
+    # per-sensor stamps too), under the flattened VehicleTrackFrame schema.
     twin = channels[f"{VEHICLE_KEY}/json"]
     assert summary.schemas[twin.schema_id].name == "VehicleTrackFrame"
     flat = json.loads(summary.schemas[twin.schema_id].data)
+    rows = flat["properties"]["tracks"]["items"]["properties"]
     for raw_message, js in zip(topics[VEHICLE_KEY], topics[f"{VEHICLE_KEY}/json"], strict=True):
         value = json.loads(js.data)
-        assert value == with_base64(msgpack.unpackb(raw_message.data))
+        check_twin(value, raw_message.data, "VehicleTrackFrame")
+        assert [t["existence"] for t in value["tracks"]] == [0.97, 0.5]
         assert set(value) <= set(flat["properties"])  # (null stays allowed where it was)
+        assert all(set(t) <= set(rows) for t in value["tracks"])
         assert (js.log_time, js.publish_time) == (raw_message.log_time, raw_message.publish_time)
 
 
 def test_the_fused_json_schema_is_one_foxglove_reads() -> None:
     wire = json.loads((ROOT / "schemas" / "json" / "VehicleTrackFrame.schema.json").read_bytes())
     flat = json.loads(foxglove_schema("VehicleTrackFrame"))
-    assert foxglove_reads(flat) == []
-    assert flat == flatten(wire) and "$ref" not in json.dumps(flat)
-    assert set(flat["properties"]) == set(wire["properties"])
-    tracks = flat["properties"]["tracks"]["properties"]
-    assert tracks["existence"]["contentEncoding"] == "base64"
-    assert tracks["sensor_stamp_ns"]["x-shape"] == ["count", "sensors"]
+    assert foxglove_reads(flat) == [] and "$ref" not in json.dumps(flat)
+    plain = flatten(wire)
+    assert {
+        k: v for k, v in flat["properties"].items() if k not in ("tracks", "count", "classes")
+    } == {k: v for k, v in plain["properties"].items() if k != "tracks"}
+    assert set(flat["properties"]) == set(wire["properties"]) | {"count", "classes"}
+    rows = flat["properties"]["tracks"]["items"]["properties"]
+    assert rows["existence"] == {"type": "number", "description": rows["existence"]["description"]}
+    assert rows["sensor_stamp_ns"]["type"] == "array"
+    assert rows["sensor_stamp_ns"]["items"] == {"type": "integer"}
 
 
 def test_fused_scenes_show_global_ids_and_existence(recorded: Path) -> None:
@@ -250,19 +258,21 @@ def test_a_fused_sensors_extrinsic_places_it_in_the_vehicles_frame(recorded: Pat
     assert json.loads(first.data)["parent_frame_id"] == "base_link"
 
 
-def test_damaged_fused_tracks_add_no_scene() -> None:
+def test_damaged_fused_tracks_add_no_twins() -> None:
+    """A table whose columns do not fit its count and sensors has no rows to show or draw:
+    only its raw channel holds it."""
     frame = msgpack.unpackb(vehicle_frame(0))
     frame["tracks"]["sensor_stamp_ns"] = frame["tracks"]["sensor_stamp_ns"][:8]  # one sensor's
     derived = FoxgloveChannels().derive(
         VEHICLE_KEY, "tracks", "veh01", "@vehicle", msgpack.packb(frame)
     )
-    assert [d.topic for d in derived] == [f"{VEHICLE_KEY}/json"]
+    assert derived == []
     frame = msgpack.unpackb(vehicle_frame(0))
     frame["sensors"] = "lidar"
     derived = FoxgloveChannels().derive(
         VEHICLE_KEY, "tracks", "veh01", "@vehicle", msgpack.packb(frame)
     )
-    assert [d.topic for d in derived] == [f"{VEHICLE_KEY}/json"]
+    assert derived == []
 
 
 def test_replay_never_takes_fused_tracks_for_detections(recorded: Path) -> None:

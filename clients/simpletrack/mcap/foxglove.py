@@ -1,5 +1,6 @@
 """The channels a recording carries for Foxglove next to each raw key (Foxglove decodes no
-msgpack): ``<key>/json``, the same message as JSON (bins as base64 strings), and, for detections
+msgpack): ``<key>/json``, the message as JSON with its box table as one object of numbers per
+box, for the Plot and Raw Messages panels (rows.py), and, for detections
 and tracks (a fused vehicle's ``@vehicle`` tracks too), ``<key>/scene`` (a
 ``foxglove.SceneUpdate`` of the boxes) and ``<key>/tf`` (a ``foxglove.FrameTransform`` of a
 detection frame's pose, or of its extrinsic). None of these topics ends in a key leaf, so
@@ -7,7 +8,8 @@ detection frame's pose, or of its extrinsic). None of these topics ends in a key
 
 The JSON channels' schema is the wire model's JSON Schema flattened into the subset Foxglove's
 JSON Schema reader takes: every property with one ``type`` (no ``$ref``, no ``anyOf`` with
-null). A field that may be null keeps its non-null type; its value can still be null."""
+null), the box table's columns replaced by the rows' fields (``rows.twin_schema``). A field
+that may be null keeps its non-null type; its value can still be null."""
 
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from typing import Any
 import msgpack
 
 from simpletrack.mcap.format import schema_data, schema_name
+from simpletrack.mcap.rows import twin, twin_schema
 from simpletrack.mcap.scene import SceneConverter
 from simpletrack.wire.header import MAX_BYTES
 from simpletrack.wire.keys import ERRORS
@@ -46,11 +49,11 @@ class Derived:
 @functools.cache
 def foxglove_schema(name: str) -> bytes:
     """The JSON Schema text a Foxglove channel is described by, by schema name (a Foxglove
-    schema's, or a wire model's: its JSON Schema flattened)."""
+    schema's, or a wire model's: its JSON Schema flattened, with the box table as rows)."""
     if name in (SCENE_SCHEMA, TF_SCHEMA):
         file = importlib.resources.files("simpletrack.mcap") / "foxglove_schemas"
         return (file / f"{name.removeprefix('foxglove.')}.json").read_bytes()
-    return json.dumps(flatten(json.loads(schema_data(name))), indent=2).encode()
+    return json.dumps(twin_schema(name, flatten(json.loads(schema_data(name)))), indent=2).encode()
 
 
 def flatten(schema: dict[str, Any]) -> dict[str, Any]:
@@ -140,9 +143,11 @@ class FoxgloveChannels:
         if obj is None:
             return []
         out = []
-        text = to_json(obj)
+        name = schema_name(sensor, leaf)
+        shown = twin(name, obj)
+        text = None if shown is None else to_json(shown)
         if text is not None:
-            out.append(Derived(key + JSON_SUFFIX, schema_name(sensor, leaf), text))
+            out.append(Derived(key + JSON_SUFFIX, name, text))
         if leaf == ERRORS:
             return out
         scene, transform = self._scenes.convert(leaf, vehicle, sensor, obj)

@@ -1,6 +1,8 @@
 """An MCAP recording of Zenoh samples: every sample of the chosen keys (sensors' and fused
 vehicles'), its payload bytes unchanged (layout in format.py), and unless told not to, the
-same messages in forms Foxglove shows (foxglove.py). Used by ``simpletrack record --format mcap`` and ``simpletrack demo --mcap``."""
+same messages in forms Foxglove shows (foxglove.py); when given a ``Ros2Bag``, their Autoware
+messages in a ROS 2 bag next to it (ros2.py). Used by ``simpletrack record --format mcap``
+and ``simpletrack demo --mcap``."""
 
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from simpletrack.mcap.format import (
     version,
 )
 from simpletrack.mcap.foxglove import JSON_ENCODING, Derived, FoxgloveChannels, foxglove_schema
+from simpletrack.mcap.ros2 import Ros2Bag
 from simpletrack.wire.header import peek_custody, peek_header
 from simpletrack.wire.keys import TRACKS
 
@@ -41,22 +44,26 @@ class McapRecorder:
     slow disk or a big frame never holds Zenoh's thread. Channels and schemas are registered
     on a topic's first message. ``messages`` counts the raw samples written; ``unrecorded``
     those refused because the writer was ``QUEUE_SAMPLES`` behind, or that it could not
-    write (said in the summary: never a silent loss)."""
+    write (said in the summary: never a silent loss). ``ros2``: the bag that each written
+    detections and tracks sample also goes to (the recorder closes it)."""
 
-    def __init__(self, path: Path, prefix: str, foxglove: bool = True) -> None:
+    def __init__(
+        self, path: Path, prefix: str, foxglove: bool = True, ros2: Ros2Bag | None = None
+    ) -> None:
         self._file: BinaryIO = open(path, "wb")  # noqa: SIM115 (closed in close())
         self.path = path
         self._writer = Writer(self._file)
         self._writer.start(profile="", library=f"simpletrack {version()}")
-        self._writer.add_metadata(
-            METADATA_NAME,
-            {
-                "tool": TOOL,
-                "version": version(),
-                "prefix": prefix,
-                "foxglove": str(foxglove).lower(),
-            },
-        )
+        metadata = {
+            "tool": TOOL,
+            "version": version(),
+            "prefix": prefix,
+            "foxglove": str(foxglove).lower(),
+        }
+        if ros2 is not None:
+            metadata["ros2"] = ros2.path.name
+        self._writer.add_metadata(METADATA_NAME, metadata)
+        self._ros2 = ros2
         self._lock = threading.Lock()
         self._foxglove = FoxgloveChannels() if foxglove else None
         self._schemas: dict[tuple[str, str], int] = {}
@@ -136,6 +143,16 @@ class McapRecorder:
             )
         with self._lock:
             self.messages += 1
+        if self._ros2 is not None:
+            self._ros2.add(
+                parts[3],
+                parts[1],
+                parts[2],
+                payload,
+                log_time=received,
+                publish_time=publish,
+                sequence=sequence,
+            )
 
     def close(self) -> None:
         """Writes what is queued, then the summary: the file is complete and indexed. Samples
@@ -150,6 +167,8 @@ class McapRecorder:
             self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._file.close()
+            if self._ros2 is not None:
+                self._ros2.close()
 
 
 def subscribe(

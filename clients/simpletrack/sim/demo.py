@@ -44,7 +44,9 @@ from simpletrack.client.subscriber import (
 from simpletrack.core import jit, solvers
 from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_to_json
 from simpletrack.mcap.format import LEAVES
+from simpletrack.mcap.ros2 import Ros2Bag
 from simpletrack.mcap.writer import McapRecorder, subscribe
+from simpletrack.ros2.recording import AutowareMessages
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.sim.demo_fusion import VehicleCollector
 from simpletrack.sim.demo_stats import FleetStats
@@ -88,6 +90,7 @@ class DemoOptions:
     drain_s: float = 2.0  # after the last frame, wait this long for its tracks
     view_port: int | None = 8090  # the browser view's port (0: any free one; None: no view)
     mcap: Path | None = None  # record the fleet's detections, tracks and errors here
+    ros2: Path | None = None  # with mcap: a ROS 2 bag of the same frames (Autoware messages)
 
 
 @dataclass
@@ -325,7 +328,10 @@ class FleetDemo:
                 if o.view_port is not None:
                     view = self._start_view(view_session, result)
                 if o.mcap is not None:
-                    recorder = McapRecorder(o.mcap, o.prefix)
+                    bag = None
+                    if o.ros2 is not None:
+                        bag = Ros2Bag(o.ros2, o.prefix, AutowareMessages())
+                    recorder = McapRecorder(o.mcap, o.prefix, ros2=bag)
                     recording = subscribe(
                         view_session, o.prefix, [("*", "*")], list(LEAVES), recorder
                     )

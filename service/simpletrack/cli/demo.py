@@ -98,6 +98,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="record the fleet's detections, tracks and errors to this MCAP file (replay it "
         "with `simpletrack replay mcap FILE`)",
     )
+    p.add_argument(
+        "--ros2",
+        nargs="?",
+        const=True,
+        type=Path,
+        metavar="BAG",
+        help="with --mcap: also a ROS 2 bag of the same frames as Autoware DetectedObjects and "
+        "TrackedObjects (default: the --mcap file with .ros2.mcap; docs/ROS2.md, 'Recordings')",
+    )
     add_zenoh_args(p)
     p.set_defaults(func=run)
 
@@ -117,6 +126,14 @@ def _options(args: argparse.Namespace) -> object:
         raise UserError(f"--view-port {args.view_port} is not a port number")
     if args.mcap is not None and not args.mcap.parent.is_dir():
         raise UserError(f"--mcap {args.mcap}: no folder {args.mcap.parent}")
+    if args.ros2 is not None and args.mcap is None:
+        raise UserError("--ros2 records beside --mcap: give --mcap FILE too")
+    if args.ros2 is True:
+        from simpletrack.mcap.ros2 import default_path
+
+        args.ros2 = default_path(args.mcap)
+    if args.ros2 is not None and not args.ros2.parent.is_dir():
+        raise UserError(f"--ros2 {args.ros2}: no folder {args.ros2.parent}")
     try:
         sim = SimConfig(
             seed=args.seed,
@@ -163,6 +180,7 @@ def _options(args: argparse.Namespace) -> object:
         service_log=args.service_log,
         view_port=None if args.no_view else args.view_port,
         mcap=args.mcap,
+        ros2=args.ros2,
     )
 
 
@@ -231,6 +249,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  wrote {args.json}")
     if args.mcap is not None:
         print(f"  wrote {args.mcap} (replay it: simpletrack replay mcap {args.mcap})")
+    if args.ros2 is not None:
+        print(f"  wrote {args.ros2} (a ROS 2 bag: rosbags, ros2 bag play)")
     sys.stdout.flush()
     if result.stopped_by == "interrupted":
         return 0  # Ctrl-C is the documented way to end it

@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import zenoh
 
@@ -37,6 +37,9 @@ from simpletrack.mcap.format import LEAVES
 from simpletrack.wire import TrackFrame
 from simpletrack.wire.keys import TRACKS, VEHICLE_STREAM
 
+if TYPE_CHECKING:
+    from simpletrack.ros2.recording import AutowareMessages
+
 EPILOG = f"""\
 formats:
   jsonl   OUT/tracks.jsonl, one line per track frame of any stream (layout in
@@ -56,13 +59,22 @@ formats:
           frame's stamp. A whole vehicle (veh01/*) or the fleet (*/*, the default) brings
           its fused vehicles' tracks, <prefix>/<vehicle>/@vehicle/tracks (VehicleTrackFrame),
           when --what has tracks; veh01/@vehicle records those alone. For Foxglove (which
-          decodes no msgpack), each key also gets <key>/json (the message as JSON, bins
-          base64) and detections and tracks <key>/scene (foxglove.SceneUpdate boxes for the
-          3D panel; fused tracks labelled with their existence), and detections with a
+          decodes no msgpack), each key also gets <key>/json (the message as JSON, its
+          boxes or tracks one object of numbers each, for the Plot panel:
+          fleet/veh01/lidar/tracks/json.tracks[:]{{id==7}}.x) and detections and tracks
+          <key>/scene (foxglove.SceneUpdate boxes for the 3D panel; fused tracks
+          labelled with their existence), and detections with a
           pose or an extrinsic <key>/tf (foxglove.FrameTransform); --no-foxglove writes only
           the raw channels. `simpletrack replay mcap OUT` publishes its detections again
           (fused sensors' too; the fused tracks are the service's to make);
           `mcap info OUT` and Foxglove open it. --frames counts raw messages here.
+          --ros2 [BAG] also writes BAG (default OUT with .ros2.mcap), a ROS 2 bag (MCAP,
+          profile ros2, cdr) of the same frames as autoware_perception_msgs:
+          /simpletrack/<vehicle>/<sensor>/detected_objects (DetectedObjects),
+          /simpletrack/<vehicle>/<sensor>/tracked_objects and, fused,
+          /simpletrack/<vehicle>/tracked_objects (TrackedObjects), converted as
+          `simpletrack bridge ros2` does (docs/ROS2.md, "Recordings"); labels from each
+          message's preset (nuscenes, kitti, wod, by its classes) or --ros2-labels.
 
 Stops on Ctrl-C or SIGTERM (exit 0, files complete), after --frames N frames, after
 --duration S seconds, or after --idle S seconds without frames once some arrived.
@@ -81,6 +93,9 @@ examples:
   # a field recording of one vehicle: what it sent, what came back (its fused tracks
   # too), until Ctrl-C
   simpletrack record --format mcap --out out/veh01.mcap --sensors 'veh01/*'
+
+  # the same with a ROS 2 bag of Autoware messages beside it (out/veh01.ros2.mcap)
+  simpletrack record --format mcap --out out/veh01.mcap --sensors 'veh01/*' --ros2
 
   # one vehicle's lidar, 500 frames
   simpletrack record --keys 'fleet/veh01/lidar/tracks' --frames 500 --out out/veh01
@@ -121,6 +136,21 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         action="store_true",
         help="mcap: only the raw msgpack channels, not their JSON, scene and transform twins",
     )
+    p.add_argument(
+        "--ros2",
+        nargs="?",
+        const=True,
+        type=Path,
+        metavar="BAG",
+        help="mcap: also a ROS 2 bag of Autoware DetectedObjects/TrackedObjects (default: OUT "
+        "with .ros2.mcap)",
+    )
+    p.add_argument(
+        "--ros2-labels",
+        metavar="SPEC",
+        help="mcap --ros2: label map, a preset (nuscenes, kitti, wod) or LABEL=class pairs "
+        "(default: each message's preset, by its classes)",
+    )
     p.add_argument("--frames", type=int, help="stop after this many frames")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--idle", type=float, help="stop after this many seconds without frames")
@@ -142,6 +172,8 @@ def _check(args: argparse.Namespace) -> tuple[str | None, str | None]:
         raise UserError("--sensors and --what apply to --format mcap only")
     elif args.no_foxglove:
         raise UserError("--no-foxglove applies to --format mcap only")
+    elif args.ros2 is not None or args.ros2_labels is not None:
+        raise UserError("--ros2 and --ros2-labels apply to --format mcap only")
     keys = args.keys or f"{prefix}/*/*/tracks"
     try:
         zenoh.KeyExpr(keys)
@@ -310,6 +342,7 @@ def run(args: argparse.Namespace) -> int:
 def run_mcap(args: argparse.Namespace) -> int:
     from simpletrack.cli.record_mcap import parse_sensors, parse_what
     from simpletrack.mcap.format import recorded_keys
+    from simpletrack.mcap.ros2 import Ros2Bag
     from simpletrack.mcap.writer import McapRecorder, subscribe
 
     sensors = parse_sensors(args.sensors)
@@ -322,6 +355,7 @@ def run_mcap(args: argparse.Namespace) -> int:
     options = client_options(args)
     if not args.out.parent.is_dir():
         raise UserError(f"--out {args.out}: no folder {args.out.parent}")
+    bag_path, messages = _ros2_options(args)
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -331,11 +365,19 @@ def run_mcap(args: argparse.Namespace) -> int:
     started = time.monotonic()
     reason = "interrupted"
     recorder = None
+    bag = None
     try:
         session = open_client_session(options)
         try:
+            if bag_path is not None and messages is not None:
+                try:
+                    bag = Ros2Bag(bag_path, args.prefix, messages)
+                except OSError as exc:
+                    raise UserError(f"--ros2 {bag_path}: {exc.strerror}") from None
             try:
-                recorder = McapRecorder(args.out, args.prefix, foxglove=not args.no_foxglove)
+                recorder = McapRecorder(
+                    args.out, args.prefix, foxglove=not args.no_foxglove, ros2=bag
+                )
             except OSError as exc:
                 raise UserError(f"--out {args.out}: {exc.strerror}") from None
             subs = subscribe(session, args.prefix, sensors, what, recorder)
@@ -363,16 +405,44 @@ def run_mcap(args: argparse.Namespace) -> int:
             session.close()  # type: ignore[no-untyped-call]
     finally:
         if recorder is not None:
-            recorder.close()
+            recorder.close()  # and the bag
+        elif bag is not None:
+            bag.close()
         for s, handler in previous.items():
             signal.signal(s, handler)
-    messages = recorder.messages if recorder is not None else 0
+    written = recorder.messages if recorder is not None else 0
     unrecorded = recorder.unrecorded if recorder is not None else 0
+    ros2 = ""
+    if bag is not None:
+        ros2 = f"; {bag.messages} ROS 2 messages to {bag.path}" + (
+            f" ({bag.skipped} frames the wire's checks refused left out)" if bag.skipped else ""
+        )
     print(
-        f"record: {reason}: {messages} messages in {time.monotonic() - started:.1f} s to {args.out}"
+        f"record: {reason}: {written} messages in {time.monotonic() - started:.1f} s to {args.out}"
+        + ros2
         + (f"; {unrecorded} not recorded (the writer fell behind)" if unrecorded else "")
     )
     return 0
+
+
+def _ros2_options(args: argparse.Namespace) -> tuple[Path | None, AutowareMessages | None]:
+    """The bag's path and its messages for ``--ros2`` (None, None without it)."""
+    from simpletrack.mcap.ros2 import default_path
+    from simpletrack.ros2.recording import AutowareMessages
+
+    if args.ros2 is None:
+        if args.ros2_labels is not None:
+            raise UserError("--ros2-labels applies with --ros2")
+        return None, None
+    path = default_path(args.out) if args.ros2 is True else args.ros2
+    if path.resolve() == args.out.resolve():
+        raise UserError(f"--ros2 {path}: the recording's own file (--out)")
+    if path.is_dir() or not path.parent.is_dir():
+        raise UserError(f"--ros2 {path}: not a file in an existing folder")
+    try:
+        return path, AutowareMessages(args.ros2_labels)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def _idle(last_ns: int, idle_s: float) -> bool:

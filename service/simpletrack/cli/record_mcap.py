@@ -1,5 +1,5 @@
 """``simpletrack record --format mcap``: the argument parsing of the recording (the writer is
-simpletrack.mcap.writer)."""
+simpletrack.mcap.writer; ``--ros2``'s messages are simpletrack.ros2.recording's)."""
 
 from __future__ import annotations
 

@@ -33,6 +33,7 @@ from simpletrack.client.subscriber import (
     VehicleTrackSubscriber,
 )
 from simpletrack.mcap.format import MESSAGE_ENCODING, split_key
+from simpletrack.mcap.ros2 import PROFILE as ROS2_PROFILE
 from simpletrack.session import Congestion
 from simpletrack.wire import FrameError, Rejection, decode_message
 from simpletrack.wire.header import peek_header
@@ -57,9 +58,11 @@ def load(path: Path, sensors: list[tuple[str, str]] | None) -> list[Recorded]:
     if not path.is_file():
         raise UserError(f"{path}: no such file")
     out: list[Recorded] = []
+    profile = ""
     try:
         with open(path, "rb") as f:
             reader = make_reader(f)
+            profile = reader.get_header().profile
             for _schema, channel, message in reader.iter_messages(log_time_order=True):
                 parts = split_key(channel.topic)
                 if parts is None or parts[3] != DETECTIONS:
@@ -72,6 +75,11 @@ def load(path: Path, sensors: list[tuple[str, str]] | None) -> list[Recorded]:
         raise
     except Exception as exc:  # the reader raises many kinds (McapError, struct, zstd, EOF)
         raise UserError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+    if not out and profile == ROS2_PROFILE:
+        raise UserError(
+            f"{path}: a ROS 2 bag (profile {ROS2_PROFILE}, such as record's --ros2 writes), not "
+            "a recording of the wire's messages: replay the recording it was written beside"
+        )
     if not out:
         raise UserError(f"{path}: no detections channels (record with --what detections)")
     if sensors is not None:
