@@ -121,6 +121,14 @@ def test_a_garbage_flood_and_a_query_flood_leave_the_calm_sensor_untouched(
                     flooder.wait()
                 seq += FRAMES
             m = svc.metrics()
-            assert m.get('simpletrack_frames_rejected_total{reason="malformed"}', 0) > FRAMES
+            rejected = m.get('simpletrack_frames_rejected_total{reason="malformed"}', 0)
+            assert rejected > FRAMES
     finally:
         assert svc.stop() == 0
+    # Thousands refused, each announced on the errors key; the log has the first line and
+    # then one per 10 s with the count not logged (the last at the stop, or none yet).
+    lines = [
+        e for e in svc.logs() if e.get("event") == "frame_rejected" and e.get("sensor") == "noisy"
+    ]
+    assert 1 <= len(lines) <= 4, len(lines)
+    assert sum(1 + e.get("repeated", 0) for e in lines) <= rejected

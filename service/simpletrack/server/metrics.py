@@ -71,6 +71,8 @@ class Metrics:
     def __init__(self, vehicle_label: bool = False, max_vehicles: int = 100) -> None:
         self.registry = r = CollectorRegistry()
         self._vehicle_label = vehicle_label
+        # (reason, vehicle label or "") -> its counter; bounded by reasons x max_vehicles.
+        self._error_children: dict[tuple[ErrorReason, str], Any] = {}
         self._max_vehicles = max_vehicles
         self._vehicles: set[str] = set()
         v: tuple[str, ...] = ("vehicle",) if vehicle_label else ()
@@ -298,8 +300,15 @@ class Metrics:
         self.implausible.labels(cause=cause.value, **self.labels(vehicle)).inc()
 
     def count_error(self, reason: ErrorReason, vehicle: str) -> None:
-        metric = self.dropped if reason in DROP_REASONS else self.rejected
-        metric.labels(reason=reason.value, **self.labels(vehicle)).inc()
+        # On the intake's drop path for every frame a flood sheds: the labelled child is
+        # looked up once (prometheus_client's labels() costs more than the whole increment).
+        labels = self.labels(vehicle)
+        key = (reason, labels.get("vehicle", ""))
+        child = self._error_children.get(key)
+        if child is None:
+            metric = self.dropped if reason in DROP_REASONS else self.rejected
+            child = self._error_children[key] = metric.labels(reason=reason.value, **labels)
+        child.inc()
 
     def watch_burst(self, budget: BurstBudget) -> None:
         """Export the member's burst budget (its bytes in use, peak and limit, and the

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import zenoh
 
@@ -20,6 +23,13 @@ from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 # The frame lines have always come from this logger (docs/SERVICE.md shows simpletrack.pool).
 log = get_logger("pool")
 MSGPACK = zenoh.Encoding("application/msgpack")
+
+# A sensor refusing frames by the thousand (a garbage flood) would cost the worker a log line
+# each, a third of its time in such a flood: the first refusal of each sensor and reason is
+# logged, then at most one line per REFUSAL_LOG_S (the latest, with how many were not logged
+# since: ``repeated``). Every refusal is still announced on the errors key and counted.
+REFUSAL_LOG_S = 10.0
+_REFUSAL_LOG_CAP = 10_000  # sensors remembered; past it, forgotten (their next line is logged)
 
 DROP_DETAILS = {
     ErrorReason.DROPPED_QUEUE_FULL: "worker queue full (backpressure drop_oldest)",
@@ -112,6 +122,7 @@ class Outbox:
         # (vehicle, stream) -> its last tracks message: a fence stashes it with the state
         self.last: dict[tuple[str, str], bytes] = {}
         self._errors: dict[tuple[str, str], zenoh.Publisher] = {}
+        self._refusals = RepeatLog()
 
     def _publisher(
         self, table: dict[tuple[str, str], zenoh.Publisher], key: str, name: tuple[str, str]
@@ -142,19 +153,32 @@ class Outbox:
             self.tracks(vehicle, sensor, payload)
 
     def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int, held: bool) -> None:
-        """Publish and log a refusal. ``held``: the sensor is one the worker holds (it gets a
+        """Publish and log a refusal (the log at most once per REFUSAL_LOG_S per sensor and
+        reason after the first). ``held``: the sensor is one the worker holds (it gets a
         declared publisher); a sensor that never got in is told by a one-off put."""
         err = frame_error(vehicle, sensor, r, self.instance, received_ns)
         self._publish(err, held)
-        log.warning(
-            "frame_dropped" if r.reason.value.startswith("dropped") else "frame_rejected",
-            vehicle=vehicle,
-            sensor=sensor,
-            seq=r.seq,
-            reason=r.reason.value,
-            field=r.field,
-            detail=r.detail,
-        )
+        fields: dict[str, Any] = {
+            "vehicle": vehicle,
+            "sensor": sensor,
+            "seq": r.seq,
+            "reason": r.reason.value,
+            "field": r.field,
+            "detail": r.detail,
+        }
+        if r.reason.value.startswith("dropped"):  # the log names every frame shed (their count)
+            log.warning("frame_dropped", **fields)
+            return
+        event = "frame_rejected"
+        repeated = self._refusals.admit((vehicle, sensor), r.reason.value, (event, fields))
+        if repeated is not None:
+            log.warning(event, **fields, **({"repeated": repeated} if repeated else {}))
+
+    def flush_logs(self) -> None:
+        """Log the latest refusal of each sensor and reason whose interval has passed with
+        refusals not logged (a flood that stopped still gets its count into the log)."""
+        for (event, fields), repeated in self._refusals.due():
+            log.warning(event, **fields, repeated=repeated)
 
     def drops(
         self,
@@ -201,6 +225,7 @@ class Outbox:
     def forget(self, vehicle: str, sensor: str) -> None:
         """Undeclare a sensor's publishers (evicted, or the worker is stopping)."""
         self.last.pop((vehicle, sensor), None)
+        self._refusals.forget((vehicle, sensor))
         for table in (self._tracks, self._errors):
             pub = table.pop((vehicle, sensor), None)
             if pub is not None:
@@ -210,3 +235,63 @@ class Outbox:
     def close(self) -> None:
         for name in list(self._tracks.keys() | self._errors.keys()):
             self.forget(*name)
+
+
+Logged = tuple[str, dict[str, Any]]  # an event and its fields
+
+
+@dataclass(slots=True)
+class _Repeats:
+    next_at: float  # when the next line may be logged
+    held: int = 0  # refusals not logged since the last line
+    latest: Logged | None = None  # the latest of them
+
+
+class RepeatLog:
+    """Which refusals to log: per (sensor, reason), the first, then the latest once
+    ``interval_s`` has passed since the last line logged. ``admit`` says None (not now) or how
+    many were not logged since that line; ``due`` gives the held-back latest ones whose
+    interval has passed. Pure but for the clock it is given."""
+
+    def __init__(
+        self,
+        interval_s: float = REFUSAL_LOG_S,
+        cap: int = _REFUSAL_LOG_CAP,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.interval_s, self.cap, self._clock = interval_s, cap, clock
+        self._by_sensor: dict[tuple[str, str], dict[str, _Repeats]] = {}
+
+    def admit(self, sensor: tuple[str, str], reason: str, latest: Logged) -> int | None:
+        now = self._clock()
+        reasons = self._by_sensor.get(sensor)
+        if reasons is None:
+            if len(self._by_sensor) >= self.cap:
+                self._by_sensor.clear()  # sensor names come from the fleet: bounded memory
+            reasons = self._by_sensor[sensor] = {}
+        entry = reasons.get(reason)
+        if entry is None:
+            reasons[reason] = _Repeats(now + self.interval_s)
+            return 0
+        if now >= entry.next_at:
+            repeated = entry.held
+            reasons[reason] = _Repeats(now + self.interval_s)
+            return repeated
+        entry.held += 1
+        entry.latest = latest
+        return None
+
+    def due(self) -> list[tuple[Logged, int]]:
+        """The held-back latest refusal of each sensor and reason whose interval has passed,
+        with how many others were not logged before it; they count as logged now."""
+        now = self._clock()
+        out: list[tuple[Logged, int]] = []
+        for reasons in self._by_sensor.values():
+            for reason, entry in reasons.items():
+                if entry.latest is not None and now >= entry.next_at:
+                    out.append((entry.latest, entry.held - 1))
+                    reasons[reason] = _Repeats(now + self.interval_s)
+        return out
+
+    def forget(self, sensor: tuple[str, str]) -> None:
+        self._by_sensor.pop(sensor, None)

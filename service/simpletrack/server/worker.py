@@ -258,6 +258,7 @@ class Worker(threading.Thread):
             self._warned.pop(f"{s.vehicle}/{s.sensor}", None)
             self.custody.machine.gone(f"{s.vehicle}/{s.sensor}")
         self.custody.housekeeping()
+        self.outbox.flush_logs()
         # A standby without any state of a sensor gets it now, not at the next interval.
         self.custody.send_checkpoints(new_standby_only=True)
         if now >= self._next_checkpoint:
