@@ -11,14 +11,7 @@ use serde_json::json;
 use simpletrack_client::wire::{decode_vehicle_track_frame, DecodeLimits};
 use simpletrack_client::VehicleTrackMessage;
 
-use common::{vehicle_frame_json, walk_json};
-
-fn unhex(s: &str) -> Option<Vec<u8>> {
-    (0..s.len())
-        .step_by(2)
-        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
-        .collect()
-}
+use common::{unhex, vehicle_frame_json, walk_json};
 
 fn main() {
     let limits = DecodeLimits::default();

@@ -5,6 +5,8 @@
 //! (VehicleTrackFrame), `E <hex>` (FrameError).
 //! Output lines: `{"valid": true}` or `{"valid": false, "reason", "field", "seq", "stamp_ns"}`.
 
+mod common;
+
 use std::io::{self, BufRead, Write};
 
 use serde_json::json;
@@ -13,12 +15,7 @@ use simpletrack_client::wire::{
     DecodeLimits, Rejection,
 };
 
-fn unhex(s: &str) -> Option<Vec<u8>> {
-    (0..s.len())
-        .step_by(2)
-        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
-        .collect()
-}
+use common::unhex;
 
 fn main() {
     let limits = DecodeLimits::default();

@@ -9,6 +9,14 @@ use serde_json::{json, Map, Value};
 use simpletrack_client::wire::{BoxColumns, FrameError, TrackColumns, VehicleTrackFrame};
 use simpletrack_client::VehicleTrackMessage;
 
+/// The bytes of a hex string (None: not hex, or an odd length).
+pub fn unhex(s: &str) -> Option<Vec<u8>> {
+    (0..s.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(s.get(i..i + 2)?, 16).ok())
+        .collect()
+}
+
 /// `--name value` pairs and bare `--flag`s; exits with a one-line message on a bad one.
 pub struct Args {
     values: HashMap<String, String>,
