@@ -1,5 +1,5 @@
-"""Autoware DetectedObjects -> the service's detection columns; the service's tracks ->
-Autoware TrackedObjects.
+"""Autoware DetectedObjects -> the service's detection columns (and back, for recordings:
+``boxes_to_detected_objects``); the service's tracks -> Autoware TrackedObjects.
 
 Detections, object by object:
     class     the classification with the highest probability (the first of equals), through
@@ -53,6 +53,7 @@ from simpletrack.ros2.labels import LabelMap
 from simpletrack.ros2.messages import (
     UUID,
     DetectedObject,
+    DetectedObjectKinematics,
     DetectedObjects,
     Header,
     ObjectClassification,
@@ -187,6 +188,43 @@ def detections_to_boxes(
         velocity=velocity,
     )
     return out
+
+
+def boxes_to_detected_objects(
+    boxes: BoxArrays, *, stamp_ns: int, frame_id: str, labels: LabelMap
+) -> DetectedObjects:
+    """A detection frame as Autoware DetectedObjects, the inverse of the bridge's
+    ``detections_to_boxes``: per box one classification (its class through ``labels``,
+    probability the score), existence probability the score, pose from the centre and yaw
+    (orientation AVAILABLE), the velocity as the twist in the object's frame (``has_twist``
+    when the frame has velocities), a BOUNDING_BOX of the size."""
+    names = boxes.class_names()
+    velocity = boxes.velocity.tolist() if boxes.velocity is not None else None
+    objects = []
+    for i in range(len(boxes)):
+        cx, cy, cz = (float(v) for v in boxes.center[i])
+        length, width, height = (float(v) for v in boxes.size[i])
+        yaw, score = float(boxes.yaw[i]), float(boxes.score[i])
+        twist = TwistWithCovariance()
+        if velocity is not None:
+            tx, ty = rotate(velocity[i][0], velocity[i][1], -yaw)
+            twist = TwistWithCovariance(Twist(linear=Vector3(tx, ty, 0.0)))
+        objects.append(
+            DetectedObject(
+                existence_probability=score,
+                classification=(ObjectClassification(labels.label_of(names[i]), score),),
+                kinematics=DetectedObjectKinematics(
+                    pose_with_covariance=PoseWithCovariance(
+                        Pose(Point(cx, cy, cz), quaternion_of(yaw))
+                    ),
+                    orientation_availability=OrientationAvailability.AVAILABLE,
+                    twist_with_covariance=twist,
+                    has_twist=velocity is not None,
+                ),
+                shape=Shape(ShapeType.BOUNDING_BOX, dimensions=Vector3(length, width, height)),
+            )
+        )
+    return DetectedObjects(Header(time_of(stamp_ns), frame_id), tuple(objects))
 
 
 def _empty(classes: tuple[str, ...]) -> BoxArrays:

@@ -1,33 +1,18 @@
 """What ``record --ros2`` and ``demo --ros2`` write in a ROS 2 bag: the service's frames as
-Autoware messages, by the bridge's conversion (``tracks_to_tracked_objects`` and its uuid rule)
-and its inverse for detections. The bag itself is simpletrack.mcap.ros2's."""
+Autoware messages, by the bridge's conversion (simpletrack.ros2.convert:
+``tracks_to_tracked_objects`` and its uuid rule, ``boxes_to_detected_objects`` for detections). The bag itself is simpletrack.mcap.ros2's."""
 
 from __future__ import annotations
 
 from simpletrack.ros2.codec import encode_detected_objects, encode_tracked_objects
-from simpletrack.ros2.convert import quaternion_of, rotate, time_of, tracks_to_tracked_objects
+from simpletrack.ros2.convert import boxes_to_detected_objects, tracks_to_tracked_objects
 from simpletrack.ros2.labels import PRESET_LABELS, LabelMap, label_map
 from simpletrack.ros2.messages import (
     DETECTED_OBJECTS,
     TRACKED_OBJECTS,
-    DetectedObject,
-    DetectedObjectKinematics,
-    DetectedObjects,
-    Header,
-    ObjectClassification,
-    OrientationAvailability,
-    Point,
-    Pose,
-    PoseWithCovariance,
-    Shape,
-    ShapeType,
-    Twist,
-    TwistWithCovariance,
-    Vector3,
 )
 from simpletrack.ros2.typehash import MSG_DIR, type_hash
 from simpletrack.wire import (
-    BoxArrays,
     Rejection,
     decode_detection_frame,
     decode_track_frame,
@@ -45,43 +30,6 @@ def preset_labels(classes: tuple[str, ...]) -> LabelMap:
         key=lambda p: sum(c in PRESET_LABELS[p].values() for c in classes),
     )
     return label_map(best)
-
-
-def boxes_to_detected_objects(
-    boxes: BoxArrays, *, stamp_ns: int, frame_id: str, labels: LabelMap
-) -> DetectedObjects:
-    """A detection frame as Autoware DetectedObjects, the inverse of the bridge's
-    ``detections_to_boxes``: per box one classification (its class through ``labels``,
-    probability the score), existence probability the score, pose from the centre and yaw
-    (orientation AVAILABLE), the velocity as the twist in the object's frame (``has_twist``
-    when the frame has velocities), a BOUNDING_BOX of the size."""
-    names = boxes.class_names()
-    velocity = boxes.velocity.tolist() if boxes.velocity is not None else None
-    objects = []
-    for i in range(len(boxes)):
-        cx, cy, cz = (float(v) for v in boxes.center[i])
-        length, width, height = (float(v) for v in boxes.size[i])
-        yaw, score = float(boxes.yaw[i]), float(boxes.score[i])
-        twist = TwistWithCovariance()
-        if velocity is not None:
-            tx, ty = rotate(velocity[i][0], velocity[i][1], -yaw)
-            twist = TwistWithCovariance(Twist(linear=Vector3(tx, ty, 0.0)))
-        objects.append(
-            DetectedObject(
-                existence_probability=score,
-                classification=(ObjectClassification(labels.label_of(names[i]), score),),
-                kinematics=DetectedObjectKinematics(
-                    pose_with_covariance=PoseWithCovariance(
-                        Pose(Point(cx, cy, cz), quaternion_of(yaw))
-                    ),
-                    orientation_availability=OrientationAvailability.AVAILABLE,
-                    twist_with_covariance=twist,
-                    has_twist=velocity is not None,
-                ),
-                shape=Shape(ShapeType.BOUNDING_BOX, dimensions=Vector3(length, width, height)),
-            )
-        )
-    return DetectedObjects(Header(time_of(stamp_ns), frame_id), tuple(objects))
 
 
 class AutowareMessages:
