@@ -388,10 +388,11 @@ class Service:
     def _on_tracks(self, sample: zenoh.Sample) -> None:
         """Tracks frames of sensors this member owns or stands by for: how far planners
         have them, and the ids they hold (a takeover neither repeats nor reuses them)."""
-        names = self._heard_stream(sample)
-        if names is None:
+        heard = self._heard_stream(sample)
+        if heard is None:
             return
-        out = decode_track_frame(sample.payload.to_bytes())
+        names, payload = heard
+        out = decode_track_frame(payload)
         if isinstance(out, Rejection):
             return
         frame, tracks = out
@@ -400,39 +401,41 @@ class Service:
 
     def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
         """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""
-        names = self._heard_stream(sample)
-        if names is None:
+        heard = self._heard_stream(sample)
+        if heard is None:
             return
-        out = decode_vehicle_track_frame(sample.payload.to_bytes())
+        names, payload = heard
+        out = decode_vehicle_track_frame(payload)
         if isinstance(out, Rejection):
             return
         frame, tracks = out
         next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
         self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch)
 
-    def _heard_stream(self, sample: zenoh.Sample) -> tuple[str, str] | None:
-        """The stream of a tracks sample worth learning from: one this member owns or
-        stands by for and does not hold (its own tracks teach nothing; another member's
-        with a higher epoch fence it)."""
+    def _heard_stream(self, sample: zenoh.Sample) -> tuple[tuple[str, str], bytes] | None:
+        """The stream of a tracks sample worth learning from, and the payload (copied out
+        once): one this member owns or stands by for and does not hold (its own tracks teach
+        nothing; another member's with a higher epoch fence it)."""
         names = self.keys.sensor_of(str(sample.key_expr))
         if names is None or self._shared is None or len(self.membership.members) <= 1:
             return None  # alone, the only tracks are this member's own
         stream = f"{names[0]}/{names[1]}"
         if self.membership.role(stream) is Role.NONE:
             return None
+        payload = sample.payload.to_bytes()
         # Heard from the start of the settle time on, before the workers exist (none holds
         # a sensor yet then).
         if self._workers:
             worker = self._worker_of(*names)
             held = worker.sensors.get(stream)
             if held is not None:
-                self._fence_if_superseded(worker, stream, held.epoch, sample.payload.to_bytes())
+                self._fence_if_superseded(worker, stream, held.epoch, payload)
                 return None
         # Not held here, but maybe published here (before a fence or a release): what this
         # member sent is no sign of what planners have from the others.
-        if self._own_instance in sample.payload.to_bytes():
+        if self._own_instance in payload:
             return None
-        return names
+        return names, payload
 
     def _fence_if_superseded(self, worker: Worker, stream: str, epoch: int, payload: bytes) -> None:
         """A stream held here, heard from another member with a higher custody epoch: that
