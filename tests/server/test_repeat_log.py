@@ -15,8 +15,8 @@ class Clock:
         return self.t
 
 
-def line(seq: int) -> tuple[str, dict[str, object]]:
-    return ("frame_rejected", {"seq": seq})
+def line(seq: int) -> dict[str, object]:
+    return {"seq": seq}
 
 
 def test_the_first_refusal_is_logged_then_one_line_per_interval_with_the_count() -> None:

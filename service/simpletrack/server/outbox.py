@@ -169,16 +169,15 @@ class Outbox:
         if r.reason.value.startswith("dropped"):  # the log names every frame shed (their count)
             log.warning("frame_dropped", **fields)
             return
-        event = "frame_rejected"
-        repeated = self._refusals.admit((vehicle, sensor), r.reason.value, (event, fields))
+        repeated = self._refusals.admit((vehicle, sensor), r.reason.value, fields)
         if repeated is not None:
-            log.warning(event, **fields, **({"repeated": repeated} if repeated else {}))
+            log.warning("frame_rejected", **fields, **({"repeated": repeated} if repeated else {}))
 
     def flush_logs(self) -> None:
         """Log the latest refusal of each sensor and reason whose interval has passed with
         refusals not logged (a flood that stopped still gets its count into the log)."""
-        for (event, fields), repeated in self._refusals.due():
-            log.warning(event, **fields, repeated=repeated)
+        for fields, repeated in self._refusals.due():
+            log.warning("frame_rejected", **fields, repeated=repeated)
 
     def drops(
         self,
@@ -237,7 +236,7 @@ class Outbox:
             self.forget(*name)
 
 
-Logged = tuple[str, dict[str, Any]]  # an event and its fields
+Logged = dict[str, Any]  # a refusal's log fields
 
 
 @dataclass(slots=True)
