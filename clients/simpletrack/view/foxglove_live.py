@@ -37,9 +37,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 import msgpack
 import zenoh
 
-from simpletrack.view.server import PortInUse, _sensor_filters
+from simpletrack.view.server import PortInUse, _sensor_filters, plan
 from simpletrack.wire.header import MAX_BYTES
-from simpletrack.wire.keys import VEHICLE_STREAM, Keys
+from simpletrack.wire.keys import Keys
 
 if TYPE_CHECKING:
     import foxglove
@@ -247,19 +247,13 @@ class FoxgloveLive:
 
 
 def _key_exprs(prefix: str, filters: list[tuple[str, str]], detections: bool) -> list[str]:
-    """The key expressions of the page's subscriptions, each once."""
-    keys = Keys(prefix)
-    out: list[str] = []
-    for vehicle, sensor in filters:
-        fused = sensor == VEHICLE_STREAM
-        wanted = [] if fused else [keys.tracks(vehicle, sensor)]
-        # A `*` sensor never matches the verbatim `@vehicle`: subscribed by name as well.
-        if fused or sensor == "*":
-            wanted.append(keys.vehicle_tracks(vehicle))
-        if detections:  # a fused vehicle's: those of its sensors
-            wanted.append(keys.detections(vehicle, "*" if fused else sensor))
-        out += [k for k in wanted if k not in out]
-    return out
+    """The key expressions of the page's subscriptions (``plan``), each once."""
+    keys, subscribed = Keys(prefix), plan(filters, detections)
+    return (
+        [keys.tracks(v, s) for v, s in subscribed.tracks]
+        + [keys.vehicle_tracks(v) for v in subscribed.vehicles]
+        + [keys.detections(v, s) for v, s in subscribed.detections]
+    )
 
 
 def serve_foxglove(

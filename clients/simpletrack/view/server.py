@@ -19,6 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
@@ -57,6 +58,34 @@ def _sensor_filters(sensors: Iterable[str] | None) -> list[tuple[str, str]]:
     return out
 
 
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """What the view subscribes to for its sensor filters, each once: sensors' tracks
+    (vehicle, sensor), fused vehicles' tracks (vehicle) and, with detections, detection
+    key patterns (vehicle, sensor; a fused vehicle's: those of all its sensors). A ``*``
+    sensor never matches the verbatim ``@vehicle``: it brings the vehicle's fused tracks
+    as well. The page and the Foxglove channel both subscribe by it."""
+
+    tracks: list[tuple[str, str]]
+    vehicles: list[str]
+    detections: list[tuple[str, str]]
+
+
+def plan(filters: list[tuple[str, str]], detections: bool) -> Plan:
+    tracks: dict[tuple[str, str], None] = {}
+    vehicles: dict[str, None] = {}
+    dets: dict[tuple[str, str], None] = {}
+    for vehicle, sensor in filters:
+        fused = sensor == VEHICLE_STREAM
+        if not fused:
+            tracks[vehicle, sensor] = None
+        if fused or sensor == "*":
+            vehicles[vehicle] = None
+        if detections:
+            dets[vehicle, "*" if fused else sensor] = None
+    return Plan(list(tracks), list(vehicles), list(dets))
+
+
 class ViewServer:
     """The view's subscribers and HTTP server; ``close()`` stops both (the session stays)."""
 
@@ -88,34 +117,30 @@ class ViewServer:
         self._keys = Keys(prefix)
         self._subs: list[TrackSubscriber | VehicleTrackSubscriber] = []
         self._det_subs: list[zenoh.Subscriber[None]] = []
-        fused_vehicles: set[str] = set()  # one fused subscription per vehicle filter
+        subscribed = plan(filters, detections)
         try:
-            for vehicle, sensor in filters:
-                fused = sensor == VEHICLE_STREAM
-                if not fused:
-                    self._subs.append(
-                        TrackSubscriber(
-                            session,
-                            vehicle=vehicle,
-                            sensor=sensor,
-                            prefix=prefix,
-                            callback=self.state.add_tracks,
-                        )
+            for vehicle, sensor in subscribed.tracks:
+                self._subs.append(
+                    TrackSubscriber(
+                        session,
+                        vehicle=vehicle,
+                        sensor=sensor,
+                        prefix=prefix,
+                        callback=self.state.add_tracks,
                     )
-                # A `*` sensor never matches the verbatim `@vehicle`: subscribed as well.
-                if (fused or sensor == "*") and vehicle not in fused_vehicles:
-                    fused_vehicles.add(vehicle)
-                    self._subs.append(
-                        VehicleTrackSubscriber(
-                            session,
-                            vehicle=vehicle,
-                            prefix=prefix,
-                            callback=self.state.add_vehicle_tracks,
-                        )
+                )
+            for vehicle in subscribed.vehicles:
+                self._subs.append(
+                    VehicleTrackSubscriber(
+                        session,
+                        vehicle=vehicle,
+                        prefix=prefix,
+                        callback=self.state.add_vehicle_tracks,
                     )
-                if detections:  # a fused vehicle's: those of its sensors
-                    key = f"{prefix}/{vehicle}/{'*' if fused else sensor}/detections"
-                    self._det_subs.append(session.declare_subscriber(key, self._on_detections))
+                )
+            for vehicle, sensor in subscribed.detections:
+                key = self._keys.detections(vehicle, sensor)
+                self._det_subs.append(session.declare_subscriber(key, self._on_detections))
         except BaseException:
             self.close()
             raise
