@@ -1,20 +1,29 @@
-"""A vehicle installs only the client library (no extras) into a fresh virtual environment and
-talks to a real service: a detection frame goes out, its tracks come back. The install must not
-bring the service's dependencies (scipy, pydantic, prometheus-client, ...)."""
+"""A vehicle or an operator installs only the wheel (no extras) into a fresh virtual environment
+and talks to a real service: a detection frame goes out, its tracks come back, and the
+client-side commands (--version, status, watch, record, replay mcap, view, bridge ros2) run.
+The install must not bring the service's dependencies (scipy, pydantic, prometheus-client, ...)
+and stays under its size budget (measured as files in the venv, which has no pip)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import textwrap
+import threading
+import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import zenoh
 
-from tests.service_helpers import ROOT, ServiceProcess, start_service
+from simpletrack.spawn import free_port
+from tests.service_helpers import ROOT, ServiceProcess, start_service, wait_for
 
 pytestmark = pytest.mark.zenoh
 SERVICE_ONLY = ("scipy", "pydantic", "pydantic_settings", "prometheus_client", "yaml", "rich")
@@ -102,3 +111,191 @@ def test_the_command_on_a_client_install_names_the_extra_it_needs(light_python: 
     assert out.returncode == 2
     assert "pip install 'simpletrack-service[service]'" in out.stderr, out.stderr
     assert "Traceback" not in out.stderr
+
+
+# --- the client-side commands on the light install, against the real service ---------------
+LIGHT_LIMIT_MB = 120
+
+
+def _light(light_python: Path, *args: str) -> list[str]:
+    return [str(light_python.parent / "simpletrack"), *args]
+
+
+def _env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"} | {"NO_COLOR": "1"}
+
+
+def _run_light(
+    light_python: Path, *args: str, timeout: float = 120
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        _light(light_python, *args),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd="/",
+        env=_env(),
+    )
+
+
+@contextlib.contextmanager
+def _car(service: ServiceProcess, vehicle: str) -> Iterator[list[int]]:
+    """A vehicle publishing a car at 10 Hz from this process until the block ends."""
+    from simpletrack.client import Box, DetectionPublisher, ZenohOptions
+
+    stop, sent = threading.Event(), [0]
+    options = ZenohOptions(connect=[service.endpoint])
+
+    def loop() -> None:
+        with DetectionPublisher.connect(vehicle, "lidar", classes=("Car",), options=options) as pub:
+            pub.wait_for_service(20)
+            while not stop.is_set():
+                k = sent[0]
+                box = Box(10.0 + k * 0.5, 0.0, 0.8, 0.0, 4.0, 1.8, 1.6, 0.9, "Car")
+                pub.publish([box], stamp_ns=time.time_ns())
+                sent[0] += 1
+                stop.wait(0.1)
+
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    try:
+        yield sent
+    finally:
+        stop.set()
+        thread.join(10)
+
+
+def test_the_light_install_stays_under_its_size_budget(light_python: Path) -> None:
+    venv = light_python.parent.parent
+    size = sum(f.stat().st_size for f in venv.rglob("*") if f.is_file() and not f.is_symlink())
+    assert size < LIGHT_LIMIT_MB * 2**20, f"{size / 2**20:.1f} MB"
+
+
+def test_version_and_help_need_no_extra(light_python: Path) -> None:
+    version = _run_light(light_python, "--version")
+    assert version.returncode == 0 and version.stdout.startswith("simpletrack "), version
+    helped = _run_light(light_python, "--help")
+    assert helped.returncode == 0 and "serve" in helped.stdout and "watch" in helped.stdout
+
+
+def test_status_lists_the_service(light_python: Path, service: ServiceProcess) -> None:
+    out = _run_light(light_python, "status", "--connect", service.endpoint, "--json")
+    assert out.returncode == 0, out.stderr
+    assert "light-install" in out.stdout
+
+
+def test_watch_shows_a_vehicle_tracks(light_python: Path, service: ServiceProcess) -> None:
+    with _car(service, "light-watch"):
+        out = _run_light(
+            light_python, "watch", "--connect", service.endpoint,
+            "--keys", "fleet/light-watch/*/tracks", "--duration", "4", "--interval", "1",
+        )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert "light-watch/lidar seq" in out.stdout and "1 confirmed" in out.stdout, out.stdout
+
+
+def test_record_writes_the_tracks_as_json_lines(
+    light_python: Path, service: ServiceProcess, tmp_path: Path
+) -> None:
+    with _car(service, "light-rec"):
+        out = _run_light(
+            light_python, "record", "--connect", service.endpoint,
+            "--keys", "fleet/light-rec/*/tracks", "--out", str(tmp_path), "--frames", "5",
+            "--duration", "30", "--quiet",
+        )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(x) for x in (tmp_path / "tracks.jsonl").read_text().splitlines()]
+    assert len(lines) == 5 and {x["vehicle"] for x in lines} == {"light-rec"}
+    assert all(len(x["tracks"]) == 1 for x in lines[1:])
+
+
+def test_record_mcap_names_its_extra(light_python: Path, tmp_path: Path) -> None:
+    out = _run_light(
+        light_python, "record", "--listen", "tcp/127.0.0.1:0", "--format", "mcap",
+        "--out", str(tmp_path / "x.mcap"), "--duration", "1",
+    )  # fmt: skip
+    assert out.returncode == 2, out
+    assert out.stderr.strip().splitlines() == [
+        "simpletrack record: needs the mcap extra: pip install 'simpletrack-service[mcap]' "
+        "(missing module 'mcap')"
+    ]
+
+
+def test_replay_mcap_sends_a_recording_and_every_frame_is_answered(
+    light_python: Path, service: ServiceProcess, tmp_path: Path
+) -> None:
+    from mcap.writer import Writer
+
+    from simpletrack.wire import encode_detection_frame
+    from tests.service_helpers import moving_cars, stamp
+
+    path = tmp_path / "light.mcap"
+    with open(path, "wb") as f:  # zstd chunks, as record --format mcap writes them
+        w = Writer(f)
+        w.start(profile="", library="test")
+        channel = w.register_channel(
+            "fleet/light-replay/lidar/detections",
+            "msgpack",
+            w.register_schema("S", "jsonschema", b"{}"),
+        )
+        for k in range(12):
+            payload = encode_detection_frame(
+                vehicle="light-replay", sensor="lidar", seq=k, stamp_ns=stamp(k),
+                frame_id="lidar", boxes=moving_cars(k),
+            )  # fmt: skip
+            w.add_message(channel, log_time=stamp(k), data=payload, publish_time=stamp(k))
+        w.finish()
+    out = _run_light(
+        light_python, "replay", "mcap", str(path), "--connect", service.endpoint, "--rate", "max"
+    )
+    assert out.returncode == 0, out.stderr + out.stdout
+    assert "12/12 frames sent" in out.stdout and "12 tracked, 0 refused" in out.stdout, out.stdout
+
+
+def test_view_serves_a_vehicle_tracks(light_python: Path, service: ServiceProcess) -> None:
+    port = free_port()
+    proc = subprocess.Popen(
+        _light(light_python, "view", "--connect", service.endpoint, "--http-port", str(port)),
+        cwd="/", env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().startswith("view: http://127.0.0.1:")
+        with _car(service, "light-view"):
+            url = f"http://127.0.0.1:{port}/state.json"
+
+            def seen() -> bool:
+                with urllib.request.urlopen(url, timeout=5) as r:
+                    return "light-view/lidar" in json.loads(r.read())["sensors"]
+
+            wait_for(seen, 20, "the vehicle in the view's state")
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0, proc.stderr.read() if proc.stderr else ""
+
+
+def test_bridge_ros2_brings_tracked_objects_back(
+    light_python: Path, service: ServiceProcess, tmp_path: Path
+) -> None:
+    from simpletrack.ros2.layout import Layout, topic_keys
+    from tests.ros2.bridge_process import Bridge, start_bridge
+    from tests.ros2.test_bridge_process import ros_side, run_car
+
+    bridges: list[Bridge] = []
+    sessions: list[zenoh.Session] = []
+    try:
+        bridge = start_bridge(
+            bridges, tmp_path, service, "--vehicle", "light-ros", "--sensor", "lidar",
+            command=(str(light_python.parent / "simpletrack"),), env=_env(),
+        )  # fmt: skip
+        keys = topic_keys(Layout.ROS2DDS)
+        side = ros_side(sessions, bridge, keys.in_key, keys.out_key, "light-ros")
+        run_car(side, 0, 5)
+        assert side.n() == 5 and not side.errors
+        rc, out = bridge.stop()
+        assert rc == 0 and "5 TrackedObjects sent" in out, out
+    finally:
+        for b in bridges:
+            b.kill()
+        for s in sessions:
+            s.close()  # type: ignore[no-untyped-call]

@@ -42,16 +42,24 @@ class Bridge:
             self.proc.wait()
 
 
-def start_bridge(started: list[Bridge], tmp: Path, svc: ServiceProcess, *args: str) -> Bridge:
+def start_bridge(
+    started: list[Bridge],
+    tmp: Path,
+    svc: ServiceProcess,
+    *args: str,
+    command: tuple[str, ...] = (sys.executable, "-m", "simpletrack.cli.main"),
+    env: dict[str, str] | None = None,
+) -> Bridge:
+    """``command``: the ``simpletrack`` to run (another install's, e.g. the light one)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cmd = [
-        sys.executable, "-m", "simpletrack.cli.main", "bridge", "ros2",
+        *command, "bridge", "ros2",
         "--listen", endpoint, "--connect", svc.endpoint, "--log-interval", "0.5", *args,
     ]  # fmt: skip
     out, err = tmp / f"bridge-{len(started)}.out", tmp / f"bridge-{len(started)}.err"
     with open(out, "wb") as o, open(err, "wb") as e:
         proc = subprocess.Popen(
-            cmd, cwd=ROOT, env={**os.environ, "NO_COLOR": "1"}, stdout=o, stderr=e
+            cmd, cwd=ROOT, env={**(env or os.environ), "NO_COLOR": "1"}, stdout=o, stderr=e
         )
     bridge = Bridge(proc, endpoint, out, err)
     started.append(bridge)

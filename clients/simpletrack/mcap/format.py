@@ -24,6 +24,8 @@ LEAVES = (DETECTIONS, TRACKS, ERRORS)
 SCHEMA_NAMES = {DETECTIONS: "DetectionFrame", TRACKS: "TrackFrame", ERRORS: "FrameError"}
 # What a fused vehicle's tracks key (<prefix>/<vehicle>/@vehicle/tracks) carries.
 VEHICLE_SCHEMA = "VehicleTrackFrame"
+# The header profile of a ROS 2 bag (record --ros2 writes one beside the recording).
+ROS2_PROFILE = "ros2"
 METADATA_NAME = "simpletrack"
 TOOL = "simpletrack record"
 

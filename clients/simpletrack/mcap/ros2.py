@@ -34,10 +34,9 @@ from typing import BinaryIO, Protocol
 
 from mcap.writer import Writer
 
-from simpletrack.mcap.format import METADATA_NAME, TOOL, version
+from simpletrack.mcap.format import METADATA_NAME, ROS2_PROFILE, TOOL, version
 from simpletrack.wire.keys import DETECTIONS, TRACKS, VEHICLE_STREAM
 
-PROFILE = "ros2"
 MESSAGE_ENCODING = "cdr"
 SCHEMA_ENCODING = "ros2msg"
 TOPIC_ROOT = "simpletrack"
@@ -144,7 +143,7 @@ class Ros2Bag:
         self._messages = messages
         self._file: BinaryIO = open(path, "wb")  # noqa: SIM115 (closed in close())
         self._writer = Writer(self._file)
-        self._writer.start(profile=PROFILE, library=f"simpletrack {version()}")
+        self._writer.start(profile=ROS2_PROFILE, library=f"simpletrack {version()}")
         self._writer.add_metadata(
             METADATA_NAME,
             {"tool": TOOL, "version": version(), "prefix": prefix, "labels": messages.labels},

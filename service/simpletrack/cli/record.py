@@ -25,6 +25,7 @@ from simpletrack.cli.common import (
     open_client_session,
 )
 from simpletrack.cli.errors import UserError
+from simpletrack.client.jsonl import JsonlWriter, message_to_json
 from simpletrack.client.publisher import check_name
 from simpletrack.client.subscriber import (
     TrackMessage,
@@ -32,12 +33,12 @@ from simpletrack.client.subscriber import (
     VehicleTrackMessage,
     VehicleTrackSubscriber,
 )
-from simpletrack.datasets.recording import JsonlWriter, KittiWriter, message_to_json
 from simpletrack.mcap.format import LEAVES
 from simpletrack.wire import TrackFrame
 from simpletrack.wire.keys import TRACKS, VEHICLE_STREAM
 
 if TYPE_CHECKING:
+    from simpletrack.datasets.recording import KittiWriter
     from simpletrack.ros2.recording import AutowareMessages
 
 EPILOG = f"""\
@@ -270,7 +271,11 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     session = open_client_session(options)
     jsonl = JsonlWriter(args.out / "tracks.jsonl") if args.format == "jsonl" else None
-    kitti = KittiWriter(args.out, args.calib) if args.format == "kitti" else None
+    kitti: KittiWriter | None = None
+    if args.format == "kitti":  # the KITTI layout and calibration: the service extra's datasets
+        from simpletrack.datasets.recording import KittiWriter
+
+        kitti = KittiWriter(args.out, args.calib)
     frames = 0
     streams: set[tuple[str, str]] = set()
     started = time.monotonic()

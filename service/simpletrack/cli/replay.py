@@ -11,6 +11,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from simpletrack.cli.common import (
     ZENOH_NOTE,
@@ -22,10 +23,11 @@ from simpletrack.cli.common import (
 from simpletrack.cli.errors import UserError
 from simpletrack.client.publisher import DetectionPublisher, check_name
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
-from simpletrack.core.boxes import Boxes
-from simpletrack.core.config import preset
 from simpletrack.session import Congestion
 from simpletrack.wire import FrameError
+
+if TYPE_CHECKING:  # replay kitti|nuscenes need the service extra; replay mcap runs light
+    from simpletrack.core.boxes import Boxes
 
 EPILOG = f"""\
 Each sequence (KITTI) or scene (nuScenes) is its own sensor stream, named by --sensor
@@ -151,6 +153,7 @@ class Sequence_:
 def load_kitti(
     data: Path, seqs: list[str] | None, classes: list[str] | None
 ) -> Iterator[Sequence_]:
+    from simpletrack.core.config import preset
     from simpletrack.datasets.kitti import FRAME_PERIOD, KITTI_CLASSES, load_sequence
 
     config = preset("kitti")
@@ -180,6 +183,7 @@ def load_kitti(
 def load_nuscenes(
     data: Path, seqs: list[str] | None, classes: list[str] | None
 ) -> Iterator[Sequence_]:
+    from simpletrack.core.config import preset
     from simpletrack.datasets.nuscenes import FRAME_PERIOD_S, TYPE_NAMES, read_scene, scene_files
 
     wanted = classes or list(preset("nuscenes").class_names)
@@ -394,18 +398,22 @@ def run(args: argparse.Namespace) -> int:
 
 
 class _progress:
-    """A rich progress bar on stderr when it is a terminal; nothing otherwise."""
+    """A rich progress bar on stderr when it is a terminal; nothing otherwise (nor on the
+    light install, which has no rich)."""
 
     def __init__(self, total: int, disabled: bool) -> None:
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeRemainingColumn,
-        )
-
+        self.progress: Any = None
+        try:
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeRemainingColumn,
+            )
+        except ModuleNotFoundError:
+            return
         console = Console(stderr=True)
         self.progress = Progress(
             TextColumn("replay"),
@@ -418,11 +426,13 @@ class _progress:
         self.task = self.progress.add_task("frames", total=total)
 
     def __enter__(self) -> _Advance:
-        self.progress.start()
+        if self.progress is not None:
+            self.progress.start()
         return _Advance(self)
 
     def __exit__(self, *exc: object) -> None:
-        self.progress.stop()
+        if self.progress is not None:
+            self.progress.stop()
 
 
 class _Advance:
@@ -430,4 +440,5 @@ class _Advance:
         self.owner = owner
 
     def __call__(self, n: int) -> None:
-        self.owner.progress.advance(self.owner.task, n)
+        if self.owner.progress is not None:
+            self.owner.progress.advance(self.owner.task, n)

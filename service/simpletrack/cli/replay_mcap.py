@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import heapq
+import struct
 import sys
 import time
 from collections.abc import Callable
@@ -20,7 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
-from mcap.reader import make_reader
 
 from simpletrack.cli.common import check_prefix, client_options, open_client_session
 from simpletrack.cli.errors import UserError
@@ -32,8 +32,8 @@ from simpletrack.client.subscriber import (
     VehicleTrackMessage,
     VehicleTrackSubscriber,
 )
-from simpletrack.mcap.format import MESSAGE_ENCODING, split_key
-from simpletrack.mcap.ros2 import PROFILE as ROS2_PROFILE
+from simpletrack.mcap.format import MESSAGE_ENCODING, ROS2_PROFILE, split_key
+from simpletrack.mcap.reader import McapError, read
 from simpletrack.session import Congestion
 from simpletrack.wire import FrameError, Rejection, decode_message
 from simpletrack.wire.header import peek_header
@@ -57,24 +57,21 @@ def load(path: Path, sensors: list[tuple[str, str]] | None) -> list[Recorded]:
     whole before anything is sent, so a damaged file fails before the first frame."""
     if not path.is_file():
         raise UserError(f"{path}: no such file")
-    out: list[Recorded] = []
-    profile = ""
     try:
-        with open(path, "rb") as f:
-            reader = make_reader(f)
-            profile = reader.get_header().profile
-            for _schema, channel, message in reader.iter_messages(log_time_order=True):
-                parts = split_key(channel.topic)
-                if parts is None or parts[3] != DETECTIONS:
-                    continue
-                if channel.message_encoding != MESSAGE_ENCODING:
-                    continue
-                seq, stamp = peek_header(message.data)
-                out.append(Recorded(*parts[:3], message.log_time, seq, message.data, stamp))
-    except UserError:
-        raise
-    except Exception as exc:  # the reader raises many kinds (McapError, struct, zstd, EOF)
+        recording = read(path)
+    except (McapError, OSError, struct.error, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not a readable MCAP file ({exc})") from None
+    except Exception as exc:  # a damaged LZ4 or zstd chunk (their errors have no common base)
         raise UserError(f"{path}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+    profile = recording.profile
+    out: list[Recorded] = []
+    for message in recording.messages:
+        channel = message.channel
+        parts = split_key(channel.topic)
+        if parts is None or parts[3] != DETECTIONS or channel.message_encoding != MESSAGE_ENCODING:
+            continue
+        seq, stamp = peek_header(message.data)
+        out.append(Recorded(*parts[:3], message.log_time, seq, message.data, stamp))
     if not out and profile == ROS2_PROFILE:
         raise UserError(
             f"{path}: a ROS 2 bag (profile {ROS2_PROFILE}, such as record's --ros2 writes), not "

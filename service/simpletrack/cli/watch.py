@@ -11,12 +11,10 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
-from rich.console import Console, Group
-from rich.table import Table
-from rich.text import Text
 
 from simpletrack.cli.common import (
     ZENOH_NOTE,
@@ -28,6 +26,9 @@ from simpletrack.cli.common import (
 from simpletrack.cli.errors import UserError
 from simpletrack.client.subscriber import TrackMessage, TrackSubscriber
 from simpletrack.wire import WireTrackState
+
+if TYPE_CHECKING:  # rich draws the live table where it is installed (the service extra)
+    from rich.console import Group
 
 EPILOG = f"""\
 One row per stream (vehicle/sensor): last seq, frames received, rate, latency from the sensor
@@ -129,24 +130,28 @@ def format_latency(ms: float | None) -> str:
     return f"{text} ({hint})" if hint else text
 
 
-def render(
+STREAM_COLUMNS = (
+    "stream", "seq", "frames", "Hz", "p50", "p99", "confirmed", "tentative", "coasting", "frame",
+    "age s",
+)  # fmt: skip
+TRACK_COLUMNS = ("id", "class", "x", "y", "yaw", "speed m/s", "score", "state", "hits", "age")
+LEFT = {"stream", "frame", "class", "state"}
+
+
+@dataclass(frozen=True, slots=True)
+class Screen:
+    """What one refresh shows, before it is drawn (by rich, or as plain text without it)."""
+
+    title: str
+    streams: list[list[str]]
+    hints: list[str]
+    detail_title: str | None = None
+    tracks: list[list[str]] = field(default_factory=list)
+
+
+def screen(
     views: dict[str, StreamView], keys: str, detail: str | None, rows: int, now: float
-) -> Group:
-    table = Table(header_style="bold")
-    for name in (
-        "stream",
-        "seq",
-        "frames",
-        "Hz",
-        "p50",
-        "p99",
-        "confirmed",
-        "tentative",
-        "coasting",
-        "frame",
-        "age s",
-    ):
-        table.add_column(name, justify="left" if name in ("stream", "frame") else "right")
+) -> Screen:
     hints: set[str] = set()
 
     def cell(ms: float | None) -> str:
@@ -156,40 +161,34 @@ def render(
         hints.add(hint)
         return f"{latency_number(ms)} !"
 
+    streams = []
     for name, v in sorted(views.items()):
         confirmed, tentative, coasting = v.states()
-        table.add_row(
-            name,
-            str(v.last.seq),
-            str(v.frames),
-            f"{v.rate(now):.1f}",
-            cell(_quantile_ms(v.latency, 0.5)),
-            cell(_quantile_ms(v.latency, 0.99)),
-            str(confirmed),
-            str(tentative),
-            str(coasting),
-            v.last.frame.frame_id,
-            f"{(time.time_ns() - v.last.received_ns) * 1e-9:.1f}",
+        streams.append(
+            [
+                name,
+                str(v.last.seq),
+                str(v.frames),
+                f"{v.rate(now):.1f}",
+                cell(_quantile_ms(v.latency, 0.5)),
+                cell(_quantile_ms(v.latency, 0.99)),
+                str(confirmed),
+                str(tentative),
+                str(coasting),
+                v.last.frame.frame_id,
+                f"{(time.time_ns() - v.last.received_ns) * 1e-9:.1f}",
+            ]
         )
-    parts: list[object] = [Text(f"watching {keys}: {len(views)} stream(s)", style="bold"), table]
-    parts.extend(Text(f"! {hint}", style="yellow") for hint in sorted(hints))
+    title = f"watching {keys}: {len(views)} stream(s)"
     chosen = detail or (next(iter(views)) if len(views) == 1 else None)
-    if chosen in views:
-        parts.append(_detail(views[chosen].last, chosen, rows))
-    return Group(*parts)  # type: ignore[arg-type]
-
-
-def _detail(msg: TrackMessage, name: str, rows: int) -> Table:
+    if chosen not in views:
+        return Screen(title, streams, sorted(hints))
+    msg = views[chosen].last
     t = msg.tracks
     order = np.argsort(np.hypot(t.center[:, 0], t.center[:, 1]))[:rows]
     names = msg.class_names()
-    table = Table(
-        title=f"{name} seq {msg.seq}: {len(t)} tracks, nearest first", header_style="bold"
-    )
-    for col in ("id", "class", "x", "y", "yaw", "speed m/s", "score", "state", "hits", "age"):
-        table.add_column(col, justify="left" if col in ("class", "state") else "right")
-    for i in order.tolist():
-        table.add_row(
+    tracks = [
+        [
             str(int(t.id[i])),
             names[i],
             f"{t.center[i, 0]:.1f}",
@@ -200,13 +199,60 @@ def _detail(msg: TrackMessage, name: str, rows: int) -> Table:
             WireTrackState(int(t.state[i])).name.lower(),
             str(int(t.hits[i])),
             str(int(t.age[i])),
-        )
-    return table
+        ]
+        for i in order.tolist()
+    ]
+    detail_title = f"{chosen} seq {msg.seq}: {len(t)} tracks, nearest first"
+    return Screen(title, streams, sorted(hints), detail_title, tracks)
+
+
+def render(shown: Screen) -> Group:
+    """The screen as rich renderables."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    def table(columns: tuple[str, ...], rows: list[list[str]], title: str | None) -> Table:
+        t = Table(title=title, header_style="bold")
+        for name in columns:
+            t.add_column(name, justify="left" if name in LEFT else "right")
+        for row in rows:
+            t.add_row(*row)
+        return t
+
+    parts: list[object] = [
+        Text(shown.title, style="bold"),
+        table(STREAM_COLUMNS, shown.streams, None),
+    ]
+    parts.extend(Text(f"! {hint}", style="yellow") for hint in shown.hints)
+    if shown.detail_title is not None:
+        parts.append(table(TRACK_COLUMNS, shown.tracks, shown.detail_title))
+    return Group(*parts)  # type: ignore[arg-type]
+
+
+def render_plain(shown: Screen) -> str:
+    """The screen as fixed-width text (a terminal without rich)."""
+
+    def table(columns: tuple[str, ...], rows: list[list[str]]) -> list[str]:
+        widths = [max(len(r[k]) for r in [list(columns), *rows]) for k in range(len(columns))]
+
+        def line(row: list[str] | tuple[str, ...]) -> str:
+            cells = (
+                c.ljust(w) if name in LEFT else c.rjust(w)
+                for c, w, name in zip(row, widths, columns, strict=True)
+            )
+            return "  ".join(cells).rstrip()
+
+        return [line(columns), *(line(r) for r in rows)]
+
+    out = [shown.title, *table(STREAM_COLUMNS, shown.streams)]
+    out.extend(f"! {hint}" for hint in shown.hints)
+    if shown.detail_title is not None:
+        out += ["", shown.detail_title, *table(TRACK_COLUMNS, shown.tracks)]
+    return "\n".join(out)
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.live import Live
-
     prefix = check_prefix(args.prefix)
     keys = args.keys or f"{prefix}/*/*/tracks"
     try:
@@ -226,17 +272,16 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    console = Console()
+    live, plain = _live_display()
     views: dict[str, StreamView] = {}
     started = time.monotonic()
     session = open_client_session(options)
-    live = Live(console=console, auto_refresh=False) if console.is_terminal else None
     next_draw = started
     try:
         sub = TrackSubscriber(session, key_expr=keys, buffer=10_000)
         if live is not None:
             live.start()
-        else:
+        elif not plain:
             print(f"watching {keys}; Ctrl-C to stop", flush=True)
         while not stop.is_set():
             now = time.monotonic()
@@ -252,8 +297,12 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if now < next_draw:
                 continue
-            if live is not None:
-                live.update(render(views, keys, args.detail, args.rows, now), refresh=True)
+            if live is not None or plain:
+                shown = screen(views, keys, args.detail, args.rows, now)
+                if live is not None:
+                    live.update(render(shown), refresh=True)
+                else:  # home, clear to the end, draw
+                    print("\x1b[H\x1b[J" + render_plain(shown), flush=True)
                 next_draw = now + 0.25
             else:
                 for name, v in sorted(views.items()):
@@ -278,3 +327,16 @@ def run(args: argparse.Namespace) -> int:
     )
     sys.stdout.flush()
     return 0
+
+
+def _live_display() -> tuple[Any, bool]:
+    """(rich's Live, False) on a terminal with rich; (None, True) on a terminal without it
+    (plain redraws); (None, False) when not on a terminal (a line per stream)."""
+    if not sys.stdout.isatty():
+        return None, False
+    try:
+        from rich.console import Console
+        from rich.live import Live
+    except ModuleNotFoundError:
+        return None, True
+    return Live(console=Console(), auto_refresh=False), False

@@ -27,7 +27,7 @@ I64 = npt.NDArray[np.int64]
 
 # Largest (detections x tracks) block of one class solved dense. nuScenes' largest is about
 # 9,000 pairs, KITTI's far less; 2^16 pairs cost some 40 ms of distances and a 0.5 MB matrix
-# (a 1,000-box frame: 43 ms with it, 200 ms with 2^18; clients/simpletrack/bench/heavy.py),
+# (a 1,000-box frame: 43 ms with it, 200 ms with 2^18; service/simpletrack/bench/heavy.py),
 # so the dense path never holds a worker long; past it cost grows with the gated pairs.
 DENSE_CELLS = 1 << 16
 

@@ -3,7 +3,9 @@ tracker with the frames of ``[cut, cut + gap)`` left out, as the service bridges
 sensor's stream (no reset; the next step predicts over the real dt, one missed frame for the
 life cycle; the first frame after the gap is flagged ``after_gap`` as the service flags it).
 
-    python -m simpletrack.bench.gaps --gaps 1,5,10,30 --json out/gaps.json
+    python -m simpletrack.bench.gaps --data ../shared/data/kitti --gaps 1,5,10,30 --json out/gaps.json
+
+The KITTI folder is ``--data``, else ``$SIMPLETRACK_DATA/kitti``; there is no default folder.
 
 Cuts every ``--every`` seconds (10 s: frames 100, 200, ...) where the sequence still has a
 frame after the gap. An object is a ground-truth trajectory matched by the KITTI evaluator's
@@ -48,6 +50,8 @@ from simpletrack.datasets.kitti import (
     load_sequence,
     tracker_to_camera,
 )
+from simpletrack.datasets.paths import KITTI as KITTI_DATA
+from simpletrack.datasets.paths import MissingData, data_dir, default_help
 from simpletrack.eval.kitti_data import (
     DONTCARE,
     MAX_COST,
@@ -365,7 +369,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="How many KITTI track ids survive a gap of G seconds in the stream "
         "(the no-gap baseline, gap 0, is always included).",
     )
-    p.add_argument("--data", type=Path, default=Path("../shared/data/kitti"))
+    p.add_argument(
+        "--data",
+        type=Path,
+        metavar="FOLDER",
+        help=f"KITTI folder: labels/, calib/, detections/pointrcnn/ ({default_help(KITTI_DATA)})",
+    )
     p.add_argument(
         "--gaps",
         default=",".join(f"{g:g}" for g in DEFAULT_GAPS_S),
@@ -377,6 +386,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--preset", default="kitti")
     p.add_argument("--json", type=Path, help="write the counts to this JSON file")
     args = p.parse_args(argv)
+    try:
+        args.data = data_dir(args.data, KITTI_DATA)
+    except MissingData as exc:
+        p.exit(2, f"{p.prog}: error: {exc}\n")
     gaps = _gaps(args.gaps)
     seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]

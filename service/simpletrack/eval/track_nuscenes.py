@@ -80,12 +80,24 @@ def main() -> None:
     import time
 
     from simpletrack.core.config import preset
+    from simpletrack.datasets.paths import NUSCENES, MissingData, data_dir, default_help
 
-    p = argparse.ArgumentParser(description=main.__doc__)
-    p.add_argument("--data", type=Path, default=Path("../shared/data/nuscenes/centerpoint_val"))
+    p = argparse.ArgumentParser(
+        prog="python -m simpletrack.eval.track_nuscenes", description=main.__doc__
+    )
+    p.add_argument(
+        "--data",
+        type=Path,
+        metavar="FOLDER",
+        help=f"nuScenes detection files, scene-*.txt ({default_help(NUSCENES)})",
+    )
     p.add_argument("--scenes", type=int, default=10)
     p.add_argument("--runs", type=int, default=3)
     args = p.parse_args()
+    try:
+        args.data = data_dir(args.data, NUSCENES)
+    except MissingData as exc:
+        p.exit(2, f"{p.prog}: error: {exc}\n")
     scenes = sorted(args.data.glob("scene-*.txt"))[: args.scenes]
     config = preset("nuscenes")
     times: dict[bool, list[float]] = {False: [], True: []}

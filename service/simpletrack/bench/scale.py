@@ -13,8 +13,10 @@ For each sensor whose last track frame before the fault came from that member
 member; and, over the frames put from 1 s before the fault to the end, how many got no track
 frame and how many got more than one.
 
-Until the group protocol is on main every member tracks every sensor it hears: capacity
-cannot grow with M, every frame gets M answers, and the figures say so.
+The members form one group (docs/SCALE.md): each sensor is tracked by one member, so before a
+fault every frame gets one answer and capacity grows with M as far as the machine's cores do;
+a failover publishes the dead member's last frame of each moved sensor once more, counted
+apart from other repeats.
 """
 
 from __future__ import annotations

@@ -6,6 +6,9 @@ detections, which makes a Car evaluation about 5 s and a Pedestrian one about 3 
 worker loads the detections once and scores with the evaluator of ``simpletrack eval kitti``
 in-process; result files go to a private temporary folder because that evaluator reads files.
 
+    # the KITTI folder: --data, else $SIMPLETRACK_DATA/kitti (no default folder)
+    export SIMPLETRACK_DATA=~/datasets
+
     # a grid around the current preset, 2 worker processes, rows also appended to a CSV
     .venv/bin/python -m simpletrack.eval.tune --cls Car \\
         --set score_high=0.6,0.7,0.8 --set max_distance=1.0,1.25,1.5 \\
@@ -57,6 +60,8 @@ from simpletrack.datasets.kitti import (
     result_class_names,
     write_tracked,
 )
+from simpletrack.datasets.paths import KITTI as KITTI_DATA
+from simpletrack.datasets.paths import MissingData, data_dir, default_help
 from simpletrack.eval.kitti import (
     NO_THRESHOLD,
     RECALL_POINTS,
@@ -66,8 +71,6 @@ from simpletrack.eval.kitti import (
 )
 from simpletrack.eval.kitti_data import Problem, build_problem
 from simpletrack.eval.tracking import track_sequence
-
-DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "kitti"
 
 # The acceptance bar of issue 2: the better of the two reference trackers, per class.
 BAR: dict[str, dict[str, float]] = {
@@ -251,7 +254,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--cls", required=True, choices=KITTI_CLASSES, help="class to sweep")
     parser.add_argument(
-        "--data", type=Path, default=DATA, help="KITTI folder (default: %(default)s)"
+        "--data",
+        type=Path,
+        metavar="FOLDER",
+        help=f"KITTI folder: labels/, calib/, detections/pointrcnn/ ({default_help(KITTI_DATA)})",
     )
     parser.add_argument(
         "--seqs",
@@ -283,6 +289,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--csv", type=Path, help="append one row per evaluation to this file")
     args = parser.parse_args(argv)
+    try:
+        args.data = data_dir(args.data, KITTI_DATA)
+    except MissingData as exc:
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
     if not (args.data / "labels").is_dir():
         parser.error(f"no KITTI labels in {args.data}")
 

@@ -1,78 +1,25 @@
-"""Writing received tracks to files: JSON lines (one frame per line, for anything) and the KITTI
-tracking result format (for ``simpletrack eval kitti --results``).
+"""Writing tracks to files beside the client's JSON lines (``simpletrack.client.jsonl``): the
+simulator's ground truth in that layout, and the KITTI tracking result format (for
+``simpletrack eval kitti --results``).
 
-JSON lines, one object per received ``TrackFrame``::
-
-    {"vehicle": "veh00", "sensor": "lidar", "seq": 12, "stamp_ns": ..., "frame_id": "world",
-     "received_ns": ..., "published_ns": ..., "tracks": [
-        {"id": 3, "cls": "vehicle", "box": [x, y, z, yaw, l, w, h], "score": 0.91,
-         "velocity": [vx, vy, vz], "state": "confirmed", "hits": 9, "age": 11,
-         "time_since_update": 0}, ...]}
-
-Ground truth uses the same layout (``tracks`` holding the true objects, ``state`` "truth", or
+Ground truth uses the JSON lines layout (``tracks`` holding the true objects, ``state`` "truth", or
 "ignored" for the mostly hidden ones the scorer ignores), so ``simpletrack plot`` reads both.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from simpletrack.client.jsonl import rounded
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.kitti import Calib, ResultRows, format_results, read_calib, tracks_to_rows
-from simpletrack.wire import TrackArrays, TrackFrame, WireTrackState
+from simpletrack.wire import TrackArrays, TrackFrame
 from simpletrack.wire.convert import track_boxes_from_wire
-
-STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
-
-
-def _r(a: npt.NDArray[Any], digits: int = 4) -> list[Any]:
-    return np.round(a.astype(np.float64), digits).tolist()  # type: ignore[no-any-return]
-
-
-def message_to_json(f: TrackFrame, t: TrackArrays) -> dict[str, Any]:
-    """One received track frame (header and columns) as a JSON lines object."""
-    box = track_boxes_from_wire(t).params
-    tracks = [
-        {
-            "id": i,
-            "cls": c,
-            "box": b,
-            "score": s,
-            "velocity": v,
-            "state": STATE_NAMES.get(st, str(st)),
-            "hits": h,
-            "age": a,
-            "time_since_update": tsu,
-        }
-        for i, c, b, s, v, st, h, a, tsu in zip(
-            t.id.tolist(),
-            [t.classes[i] for i in t.class_index.tolist()],
-            _r(box),
-            _r(t.score),
-            _r(t.velocity),
-            t.state.tolist(),
-            t.hits.tolist(),
-            t.age.tolist(),
-            t.time_since_update.tolist(),
-            strict=True,
-        )
-    ]
-    return {
-        "vehicle": f.vehicle,
-        "sensor": f.sensor,
-        "seq": f.seq,
-        "stamp_ns": f.stamp_ns,
-        "frame_id": f.frame_id,
-        "received_ns": f.received_ns,
-        "published_ns": f.published_ns,
-        "tracks": tracks,
-    }
 
 
 def truth_to_json(
@@ -97,28 +44,10 @@ def truth_to_json(
         "tracks": [
             {"id": i, "cls": class_names[c], "box": b, "state": "ignored" if h else "truth"}
             for i, c, b, h in zip(
-                ids.tolist(), boxes.cls.tolist(), _r(boxes.params), hidden, strict=True
+                ids.tolist(), boxes.cls.tolist(), rounded(boxes.params), hidden, strict=True
             )
         ],
     }
-
-
-class JsonlWriter:
-    """Appends one JSON object per line; flushes every line (a crash loses nothing)."""
-
-    def __init__(self, path: Path) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.path = path
-        self._file: IO[str] = path.open("w", encoding="utf-8")
-        self.lines = 0
-
-    def write(self, obj: dict[str, Any]) -> None:
-        self._file.write(json.dumps(obj, separators=(",", ":")) + "\n")
-        self._file.flush()
-        self.lines += 1
-
-    def close(self) -> None:
-        self._file.close()
 
 
 class KittiWriter:

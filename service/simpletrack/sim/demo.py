@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from simpletrack.client.jsonl import JsonlWriter, message_to_json
 from simpletrack.client.mailbox import Mailbox
 from simpletrack.client.publisher import DetectionPublisher
 from simpletrack.client.subscriber import (
@@ -42,7 +43,7 @@ from simpletrack.client.subscriber import (
     VehicleTrackSubscriber,
 )
 from simpletrack.core import jit, solvers
-from simpletrack.datasets.recording import JsonlWriter, message_to_json, truth_to_json
+from simpletrack.datasets.recording import truth_to_json
 from simpletrack.mcap.format import LEAVES
 from simpletrack.mcap.ros2 import Ros2Bag
 from simpletrack.mcap.writer import McapRecorder, subscribe

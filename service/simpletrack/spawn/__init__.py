@@ -37,7 +37,7 @@ from simpletrack.wire.convert import boxes_to_wire, tracks_from_wire
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import FrameError, ServiceStatus
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 STAMP_ORIGIN_NS = 1_000_000_000  # frame stamps (seconds) are sent as origin + stamp * 1e9
 
 

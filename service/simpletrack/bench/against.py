@@ -89,7 +89,7 @@ class Figure:
 
 # ----------------------------------------------------------------------------- git
 def checkout_root() -> Path:
-    """The tree this code was imported from (clients/simpletrack/bench/ is three levels down)."""
+    """The tree this code was imported from (service/simpletrack/bench/ is three levels down)."""
     return Path(__file__).resolve().parents[3]
 
 
