@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import errno
 import json
+import socket
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from simpletrack.server.settings import load_settings
-from simpletrack.session import ZenohMode, ZenohOptions, open_session
+from simpletrack.session import (
+    ZenohMode,
+    ZenohOptions,
+    listen_error,
+    open_session,
+    without_rust_locations,
+)
 
 
 def _file(tmp_path: Path, body: str) -> Path:
@@ -134,3 +143,52 @@ def test_a_blocked_put_keeps_its_link_a_minute_unless_the_config_file_says_other
         "{transport: {link: {tx: {queue: {congestion_control: {block: {wait_before_close: 7}}}}}}}",
     )
     assert json.loads(ZenohOptions(config_file=f).to_config().get_json(key)) == 7
+
+
+def test_a_listen_port_in_use_is_one_line_a_user_can_act_on() -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        endpoint = f"tcp/127.0.0.1:{busy.getsockname()[1]}"
+        with pytest.raises(zenoh.ZError) as info:
+            open_session(ZenohOptions(listen=[endpoint])).close()  # type: ignore[no-untyped-call]
+    assert listen_error(info.value) == (
+        f"cannot listen on {endpoint}: the address is in use (another simpletrack service or "
+        "a Zenoh router?); pass --listen with a free port"
+    )
+    assert ".rs:" not in without_rust_locations(info.value)
+
+
+@pytest.mark.parametrize(
+    ("message", "line"),
+    [
+        (  # Zenoh 1.x, word for word
+            "Can not create a new TCP listener bound to tcp/10.255.255.1:7447: [10.255.255.1:7447: "
+            f"Cannot assign requested address (os error {errno.EADDRNOTAVAIL}) at /root/.cargo/git/checkouts/zenoh-9c5"
+            "/cc83980/io/zenoh-link-commons/src/tcp.rs:61.] at /root/.cargo/git/checkouts/zenoh-9c5"
+            "/cc83980/io/zenoh-links/zenoh-link-tcp/src/unicast.rs:338.",
+            "cannot listen on tcp/10.255.255.1:7447: no network interface of this machine has "
+            "that address; pass --listen with one of its addresses (e.g. tcp/127.0.0.1:7447)",
+        ),
+        (
+            "Can not create a new UDP listener bound to udp/[::1]:80: [Can not create a new UDP "
+            f"listener on [::1]:80: Permission denied (os error {errno.EACCES}) at /x/unicast.rs:418.] at "
+            "/x/unicast.rs:536.",
+            "cannot listen on udp/[::1]:80: permission denied (a port below 1024 needs "
+            "privileges); pass --listen with a higher port",
+        ),
+    ],
+)
+def test_other_listen_errors_say_what_to_change(message: str, line: str) -> None:
+    assert listen_error(message) == line
+
+
+def test_other_errors_keep_zenohs_words_without_its_source_paths() -> None:
+    message = (
+        "Unable to connect to any of [Single(tcp/127.0.0.1:1)]!  at /root/.cargo/git/checkouts/"
+        "zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:447."
+    )
+    assert listen_error(message) is None
+    assert (
+        without_rust_locations(message) == "Unable to connect to any of [Single(tcp/127.0.0.1:1)]!"
+    )

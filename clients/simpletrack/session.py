@@ -22,7 +22,9 @@ a session is connected to right now (readiness, metrics, delivery reports).
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import re
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -293,6 +295,42 @@ def open_session(options: ZenohOptions | None = None, **kwargs: object) -> zenoh
         # Every option then counts as given (as the pydantic model did).
         options = replace(options, **cast(dict[str, Any], kwargs))
     return zenoh.open(options.to_config())
+
+
+# Zenoh's errors end each cause with the Rust source line that raised it:
+# "... (os error 98) at /root/.cargo/git/checkouts/zenoh-.../io/zenoh-link-commons/src/tcp.rs:61."
+_RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
+_LISTENER = re.compile(r"create a new \w+ listener bound to (?P<endpoint>\S+?): \[")
+_OS_ERROR = re.compile(r"\(os error (?P<code>\d+)\)")
+
+
+def without_rust_locations(error: BaseException | str) -> str:
+    """Zenoh's error message without the Rust source locations it carries."""
+    return _RUST_LOCATION.sub("", str(error)).strip()
+
+
+def listen_error(error: BaseException | str) -> str | None:
+    """One line a user can act on when opening a session failed on a listen endpoint (in
+    use, not an address of this machine, a privileged port); None for any other error."""
+    text = str(error)
+    listener, os_error = _LISTENER.search(text), _OS_ERROR.search(text)
+    if listener is None or os_error is None:
+        return None
+    where, code = listener["endpoint"], int(os_error["code"])
+    if code == errno.EADDRINUSE:
+        why = "the address is in use (another simpletrack service or a Zenoh router?)"
+        return f"cannot listen on {where}: {why}; pass --listen with a free port"
+    if code == errno.EADDRNOTAVAIL:
+        return (
+            f"cannot listen on {where}: no network interface of this machine has that "
+            "address; pass --listen with one of its addresses (e.g. tcp/127.0.0.1:7447)"
+        )
+    if code == errno.EACCES:
+        return (
+            f"cannot listen on {where}: permission denied (a port below 1024 needs "
+            "privileges); pass --listen with a higher port"
+        )
+    return None
 
 
 def open_session_waiting(

@@ -10,6 +10,7 @@ import os
 import re
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import pytest
 from packaging.specifiers import SpecifierSet
@@ -221,6 +222,33 @@ def test_prometheus_scrapes_every_instance_on_its_metrics_port(
     assert router_targets == [f"zenoh-router:{port}"]
 
 
+def test_prometheus_serves_the_runbook_at_the_address_it_is_opened_at() -> None:
+    """The alerts link to {{ $externalURL }}/consoles/simpletrack-runbook.html: the console
+    templates directory is the mounted deploy/prometheus/consoles/, and the external URL is
+    the host port Prometheus is published on (tests/deploy/test_prometheus.py has a real
+    Prometheus answer the links)."""
+    args = SERVICES["prometheus"]["command"]
+
+    def flag(name: str) -> str:
+        [value] = [a.split("=", 1)[1] for a in args if a.startswith(f"--{name}=")]
+        return interpolate(value)
+
+    consoles = host_file("prometheus", flag("web.console.templates"))
+    assert consoles == PROMETHEUS_CONFIG.parent / "consoles"
+    for rule in alert_rules():
+        url = rule["annotations"]["runbook_url"]
+        assert url.startswith("{{ $externalURL }}/consoles/"), url
+        assert (
+            consoles / url.removeprefix("{{ $externalURL }}/consoles/").partition("#")[0]
+        ).is_file()
+    external = urlsplit(flag("web.external-url"))
+    listen = flag("web.listen-address").rpartition(":")[2]
+    published = [p.rsplit(":", 2) for p in SERVICES["prometheus"]["ports"]]
+    [(host_ip, host_port)] = [(ip, hp) for ip, hp, cp in published if cp == listen]
+    assert external.scheme == "http" and external.path in ("", "/")
+    assert external.hostname in ("localhost", host_ip) and str(external.port) == host_port
+
+
 def test_grafana_is_provisioned_with_the_datasource_and_the_dashboard() -> None:
     provisioning = host_file("grafana", "/etc/grafana/provisioning")
     [datasource] = load_yaml(provisioning / "datasources" / "prometheus.yaml")["datasources"]
@@ -323,6 +351,7 @@ PER_VEHICLE = (
     "simpletrack_frames_rejected_total",
     "simpletrack_frames_dropped_total",
     "simpletrack_implausible_frames_total",
+    "simpletrack_clock_ahead_frames_total",
 )
 
 

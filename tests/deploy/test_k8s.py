@@ -21,6 +21,7 @@ from simpletrack.server.settings import ServiceSettings, load_settings
 from tests.deploy.helpers import (
     ALERTS,
     COMPOSE,
+    DEPLOY,
     K8S,
     alert_rules,
     handoff_timeout_s,
@@ -30,6 +31,7 @@ from tests.deploy.helpers import (
 )
 
 KUSTOMIZATION: dict[str, Any] = load_yaml(K8S / "kustomization.yaml")
+RUNBOOK_KUSTOMIZATION = K8S / "prometheus-runbook" / "kustomization.yaml"
 DOCS: list[dict[str, Any]] = [
     doc for name in KUSTOMIZATION["resources"] for doc in load_yaml_all(K8S / name)
 ]
@@ -231,9 +233,26 @@ def test_every_file_of_the_directory_is_applied() -> None:
         p.name for g in KUSTOMIZATION["configMapGenerator"] for p in generated(g["name"]).values()
     }
     for path in K8S.iterdir():
-        if path.name == "kustomization.yaml":
-            continue
+        if path.name == "kustomization.yaml" or path == RUNBOOK_KUSTOMIZATION.parent:
+            continue  # the runbook's kustomization goes to Prometheus's namespace
         assert path.name in listed | generated_files, f"{path.name} is not in kustomization.yaml"
+
+
+def test_the_runbook_configmap_holds_the_page_prometheus_serves() -> None:
+    """deploy/k8s/prometheus-runbook/: one ConfigMap, named without a hash suffix (the
+    Prometheus resource's volume names it), holding the runbook page under the file name the
+    alerts' runbook_url ends in."""
+    kustomization = load_yaml(RUNBOOK_KUSTOMIZATION)
+    [gen] = kustomization["configMapGenerator"]
+    assert gen["options"]["disableNameSuffixHash"] is True
+    assert gen["files"] == ["simpletrack-runbook.html"]
+    assert set(kustomization) <= {"apiVersion", "kind", "namespace", "labels", "configMapGenerator"}
+    page = RUNBOOK_KUSTOMIZATION.parent / gen["files"][0]
+    assert page.read_text() == (DEPLOY / "prometheus" / "consoles" / page.name).read_text()
+    comment = RUNBOOK_KUSTOMIZATION.read_text()
+    assert f"name: {gen['name']}" in comment and f"/etc/prometheus/consoles/{page.name}" in comment
+    for rule in alert_rules(load_yaml(K8S / "prometheusrule.yaml")["spec"]):
+        assert f"/consoles/{page.name}#" in rule["annotations"]["runbook_url"]
 
 
 def test_state_lives_on_a_persistent_volume(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -105,3 +105,18 @@ def test_a_metrics_port_in_use_is_named_with_its_address() -> None:
         f"simpletrack serve: error: metrics port {port} on 127.0.0.1 is in use "
         "(another simpletrack serve?): give this one --metrics-port (0: no HTTP endpoint)"
     )
+
+
+def test_a_zenoh_listen_port_in_use_is_one_line_without_rust_paths() -> None:
+    """The usual cause: a second serve on one host, or a Zenoh router, on the default port."""
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        endpoint = f"tcp/127.0.0.1:{busy.getsockname()[1]}"
+        out = serve("--metrics-port", "0", "--listen", endpoint, env={})
+    assert out.returncode == 2, out.stderr
+    assert error_line(out) == (
+        f"simpletrack serve: error: cannot listen on {endpoint}: the address is in use "
+        "(another simpletrack service or a Zenoh router?); pass --listen with a free port"
+    )
+    assert ".rs:" not in out.stderr and ".cargo" not in out.stderr, out.stderr

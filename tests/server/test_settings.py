@@ -4,6 +4,7 @@ and the generated docs tables."""
 from __future__ import annotations
 
 import json
+import re
 import socket
 from pathlib import Path
 
@@ -20,7 +21,14 @@ from simpletrack.core.config import (
     TrackerConfig,
     preset,
 )
-from simpletrack.server.settings import Backpressure, ZenohSettings, load_settings, refresh_docs
+from simpletrack.server.settings import (
+    OTHER_ENV_VARS,
+    Backpressure,
+    ZenohSettings,
+    check_environment,
+    load_settings,
+    refresh_docs,
+)
 from simpletrack.server.tracker_settings import TrackerOptions
 from simpletrack.session import ZenohMode, ZenohOptions
 
@@ -231,3 +239,184 @@ def test_docs_tables_are_generated_from_the_code(doc: str) -> None:
         assert name in text
     for name in ("simpletrack_frames_rejected_total", "simpletrack_end_to_end_seconds"):
         assert name in text
+
+
+# --- SIMPLETRACK_* variables that are no setting ---------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "closest"),
+    [
+        ("SIMPLETRACK_WORKRS", "SIMPLETRACK_WORKERS"),
+        ("SIMPLETRACK_ZENOH_MODE", "SIMPLETRACK_ZENOH__MODE"),  # one underscore: not nested
+        ("SIMPLETRACK_ZENOH__LISTN", "SIMPLETRACK_ZENOH__LISTEN"),
+        ("SIMPLETRACK_TRACKER__KALMAN__QQ", "SIMPLETRACK_TRACKER__KALMAN__Q"),
+        (
+            "SIMPLETRACK_FUSION__SENSORS__LIDAR__MIN_SCOR",
+            "SIMPLETRACK_FUSION__SENSORS__LIDAR__MIN_SCORE",
+        ),
+        ("SIMPLETRACK_WORKERS__MAX", "SIMPLETRACK_WORKERS"),
+        ("simpletrack_metrics_prot", "SIMPLETRACK_METRICS_PORT"),  # read case-insensitively
+        ("SIMPLETRACK_JTI", "SIMPLETRACK_JIT"),
+        ("SIMPLETRACK_DATASET", "SIMPLETRACK_DATA"),
+    ],
+)
+def test_a_variable_that_is_no_setting_is_refused_with_the_closest_name(
+    name: str, closest: str
+) -> None:
+    with pytest.raises(ValueError) as info:
+        check_environment({"HOME": "/root", "SIMPLETRACK_WORKERS": "3", name: "1"})
+    assert str(info.value) == (
+        f"environment variable {name} is no simpletrack setting: did you mean {closest}? "
+        "(unset it to start; every setting's variable: docs/SERVICE.md)"
+    )
+
+
+def test_a_variable_like_no_setting_at_all_is_refused_without_a_guess() -> None:
+    with pytest.raises(ValueError, match=r"SIMPLETRACK_XYZZY is no simpletrack setting: \(unset"):
+        check_environment({"SIMPLETRACK_XYZZY": "1"})
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        *sorted(OTHER_ENV_VARS),
+        "SIMPLETRACK_WORKERS",
+        "simpletrack_workers",
+        "SIMPLETRACK_TRACKER",  # a JSON object
+        "SIMPLETRACK_TRACKER__KALMAN__Q",
+        "SIMPLETRACK_ZENOH__CONNECT_TIMEOUT_MS",
+        "SIMPLETRACK_FUSION__SENSORS__LIDAR__MIN_SCORE",  # a sensor's name, then its field
+        "SIMPLETRACK_FUSION__WINDOW_S",
+        "SIMPLETRACK",  # not the prefix: no concern of ours
+        "NOT_SIMPLETRACK_WORKRS",
+    ],
+)
+def test_settings_and_the_variables_other_parts_read_are_accepted(name: str) -> None:
+    check_environment({name: "1"})
+
+
+# Files that hold misspelt names on purpose (the tests of the refusal, its example).
+_TYPOS_ON_PURPOSE = {"tests/server/test_settings.py", "docs/SERVICE.md", "README.md"}
+
+
+def test_every_simpletrack_variable_the_project_sets_is_accepted() -> None:
+    """Deploy files, scripts, docs and the tests' service processes: a variable they set
+    that serve refused would stop those services (and a setting renamed without them)."""
+    files = [ROOT / "Dockerfile", *(ROOT / "deploy").rglob("*"), *(ROOT / "scripts").glob("*")]
+    files += [*(ROOT / "docs").glob("*.md"), *(ROOT / "tests").rglob("*.py")]
+    names: dict[str, str] = {}
+    for path in files:
+        rel = str(path.relative_to(ROOT))
+        if not path.is_file() or rel in _TYPOS_ON_PURPOSE or path.suffix in {".png", ".svg"}:
+            continue
+        # -DSIMPLETRACK_...: the C++ client's CMake options; SIMPLETRACK_TRACKER__<FIELD>: a form
+        for m in re.finditer(r"(-D)?(SIMPLETRACK_[A-Z0-9_]+)", path.read_text(errors="ignore")):
+            if not m[1] and not m[2].endswith("_"):
+                names.setdefault(m[2], rel)
+    assert len(names) > 20, names  # the deploy files' settings at least
+    for name, where in sorted(names.items()):
+        try:
+            check_environment({name: "1"})
+        except ValueError as e:
+            raise AssertionError(f"{where}: {e}") from None
+
+
+def test_serve_refuses_a_misspelt_variable_before_it_starts(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setenv("SIMPLETRACK_METRICS_PROT", "9999")
+    assert main(["serve"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "simpletrack serve: error: environment variable SIMPLETRACK_METRICS_PROT is no "
+        "simpletrack setting: did you mean SIMPLETRACK_METRICS_PORT? (unset it to start; "
+        "every setting's variable: docs/SERVICE.md)"
+    )
+
+
+# --- a YAML settings file's mistakes, with their line and column ------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "place", "problem"),
+    [
+        (
+            "workers: 2\nzenoh:\n  mode: peer\n  listen: [tcp/127.0.0.1:7447\n",
+            "5:1",
+            "expected ',' or ']', but got '<stream end>' (while parsing a flow sequence at line 4)",
+        ),
+        ("workers: 2\nzenoh:\n  mode: peer\n listen: x\n", "4:2", "expected <block end>"),
+        ("prefix: a: b\n", "1:10", "mapping values are not allowed here"),
+    ],
+)
+def test_a_yaml_syntax_error_names_the_file_line_and_column(
+    tmp_path: Path, text: str, place: str, problem: str
+) -> None:
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text(text)
+    with pytest.raises(ValueError) as info:
+        load_settings(cfg)
+    assert str(info.value).startswith(f"{cfg}:{place}: {problem}"), info.value
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (  # an unknown key: the key's place
+            "workers: 2\nzenoh:\n  mode: peer\n  listn: [tcp/127.0.0.1:7447]\n",
+            "4:3: zenoh.listn: Extra inputs are not permitted (got ['tcp/127.0.0.1:7447'])",
+        ),
+        (  # a wrong value
+            "prefix: p\nqueue_size: 0\n",
+            "2:1: queue_size: Input should be greater than or equal to 1 (got 0)",
+        ),
+        (  # deep in the tracker options
+            "tracker:\n  kalman:\n    q: -1\n",
+            "3:5: tracker.kalman.q: Input should be greater than 0 (got -1.0)",
+        ),
+        (  # a check of the whole model names its setting first
+            "preset: kitti\nignore_classes:\n  - Car\n",
+            "2:1: ignore_classes: 'Car' is a tracked class of this preset",
+        ),
+        (  # a list item
+            "zenoh:\n  connect:\n    - tcp/10.0.0.1:7447\n    - [nested]\n",
+            "4:7: zenoh.connect.1: Input should be a valid string (got ['nested'])",
+        ),
+    ],
+)
+def test_a_wrong_value_in_a_yaml_file_names_the_file_line_column_and_key(
+    tmp_path: Path, text: str, expected: str
+) -> None:
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text(text)
+    with pytest.raises(ValueError) as info:
+        load_settings(cfg)
+    assert str(info.value) == f"{cfg}:{expected}"
+
+
+def test_every_wrong_value_of_a_yaml_file_has_its_own_place(tmp_path: Path) -> None:
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("workers: 0\nzenoh:\n  mode: peer\n  listn: []\n")
+    with pytest.raises(ValueError) as info:
+        load_settings(cfg)
+    problems = sorted(str(info.value).split("; "))
+    assert [p.split(": ")[:2] for p in problems] == [
+        [f"{cfg}:1:1", "workers"],
+        [f"{cfg}:4:3", "zenoh.listn"],
+    ]
+
+
+def test_a_wrong_value_given_over_the_file_is_not_placed_in_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text("workers: 2\nqueue_size: 4\n")
+    monkeypatch.setenv("SIMPLETRACK_WORKERS", "0")
+    with pytest.raises(ValueError) as info:
+        load_settings(cfg)
+    assert str(info.value) == "workers: Input should be greater than or equal to 1 (got '0')"
+    monkeypatch.delenv("SIMPLETRACK_WORKERS")
+    with pytest.raises(ValueError) as info:
+        load_settings(cfg, {"queue_size": 0})
+    assert str(info.value) == "queue_size: Input should be greater than or equal to 1 (got 0)"

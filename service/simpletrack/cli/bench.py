@@ -10,11 +10,19 @@ from pathlib import Path
 from typing import Any
 
 from simpletrack.cli.errors import UserError
+from simpletrack.datasets.paths import DATA, MissingData, data_dir, default_help
 
-DEFAULT_DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+DATA_HELP = (
+    f"the datasets' folder, with nuscenes/centerpoint_val/ and kitti/ ({default_help(DATA)})"
+)
 
 EPILOG = """\
+Real frames come from --data, else $SIMPLETRACK_DATA (the folder holding nuscenes/ and kitti/);
+there is no default folder. Synthetic loads need neither.
+
 examples:
+  export SIMPLETRACK_DATA=~/datasets   # holds nuscenes/centerpoint_val/ and kitti/
+
   # the tracker alone: all 150 nuScenes scenes, the 10 KITTI sequences, the scaling sweep
   simpletrack bench core --json out/bench-core.json --plot-dir out/
 
@@ -42,10 +50,11 @@ what it measures:
   The sweep: synthetic frames of N cars (one class) and as many live tracks, per-frame time
   against N on a log-log plot with the fitted growth exponent.
   The speed-up against the reference uses its authors' own measurement on this machine kind
-  (../shared/data/reference/README.md: median 0.35 s per nuScenes frame, p99 1.6 s).
+  (reference/README.md of the datasets' folder: median 0.35 s per nuScenes frame, p99 1.6 s).
+  Real frames: --data, else $SIMPLETRACK_DATA; --scenes 0 --kitti-sequences 0 needs neither.
 
 examples:
-  simpletrack bench core
+  simpletrack bench core --data ../shared/data
   simpletrack bench core --scenes 20 --kitti-sequences 0 --sizes 10,100,1000 --json core.json
   simpletrack bench core --scenes 0 --kitti-sequences 0 --plot-dir plots/   # sweep only
   simpletrack bench core --scenes 10 --kitti-sequences 2 --sizes 100,1000 --against main
@@ -72,8 +81,12 @@ what it measures (for each member count M of --instances):
   sensors whose last track frame before the fault came from that member (TrackFrame.instance):
   max and median time from the fault to their first track frame from another member; over
   the frames put from 1 s before the fault on: how many got no track frame, and how many more
-  than one. Until the group protocol lands every member tracks every sensor it hears, so
-  capacity does not grow with M and every frame gets M answers: the figures show it.
+  than one (a failover publishes the dead member's last frame of each moved sensor once
+  more: counted apart, "victim's last again"). The members form one group (docs/SCALE.md):
+  each sensor is tracked by one member, so before a fault every frame gets one answer
+  ("answers/frame before") and capacity grows with M as far as the machine's cores do (the
+  members and the load generator share them). --subscribe owned: each member subscribes to
+  the sensors it owns or stands by for only, instead of hearing every frame.
 
 examples:
   simpletrack bench scale --out out/scale/
@@ -150,8 +163,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     core.add_argument(
         "--data",
         type=Path,
-        default=DEFAULT_DATA,
-        help=f"the shared data directory (default {DEFAULT_DATA})",
+        metavar="FOLDER",
+        help=DATA_HELP,
     )
     core.add_argument(
         "--scenes",
@@ -222,8 +235,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     svc.add_argument(
         "--data",
         type=Path,
-        default=DEFAULT_DATA,
-        help=f"the shared data directory (default {DEFAULT_DATA})",
+        metavar="FOLDER",
+        help=DATA_HELP,
     )
     svc.add_argument(
         "--synthetic-boxes",
@@ -418,8 +431,8 @@ def _add_source_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--data",
         type=Path,
-        default=DEFAULT_DATA,
-        help=f"the shared data directory (default {DEFAULT_DATA})",
+        metavar="FOLDER",
+        help=DATA_HELP,
     )
     parser.add_argument(
         "--synthetic-boxes",
@@ -427,6 +440,19 @@ def _add_source_args(parser: argparse.ArgumentParser) -> None:
         default=128,
         help="boxes per synthetic frame (default 128, the nuScenes mean)",
     )
+
+
+def _data(given: Path | None, alternative: str) -> Path:
+    """The datasets' folder of a run on real frames: --data, else $SIMPLETRACK_DATA."""
+    try:
+        return data_dir(given, DATA)
+    except MissingData as exc:
+        raise UserError(f"{exc}; {alternative}") from None
+
+
+def _data_option(data: Path | None) -> tuple[str, ...]:
+    """--data for REF's run (--against): the folder this run reads, if it reads one."""
+    return () if data is None else ("--data", str(data.resolve()))
 
 
 def _out_paths(args: argparse.Namespace) -> None:
@@ -460,6 +486,8 @@ def run_core(args: argparse.Namespace) -> int:
     if args.sweep_frames < 3:
         raise UserError(f"--sweep-frames {args.sweep_frames} must be at least 3")
     _positive(args.sweep_budget, "--sweep-budget", 3600)
+    if args.scenes or args.kitti_sequences:
+        args.data = _data(args.data, "or --scenes 0 --kitti-sequences 0 for the sweep alone")
     if args.scenes and not (args.data / "nuscenes" / "centerpoint_val").is_dir():
         raise UserError(
             f"no nuScenes detections under {args.data / 'nuscenes'}: give --data, "
@@ -475,7 +503,7 @@ def run_core(args: argparse.Namespace) -> int:
             args,
             "core",
             [
-                *("--data", str(args.data.resolve())),
+                *_data_option(args.data),
                 *("--scenes", str(args.scenes)),
                 *("--kitti-sequences", str(args.kitti_sequences)),
                 *("--sizes", args.sizes),
@@ -486,7 +514,12 @@ def run_core(args: argparse.Namespace) -> int:
     _out_paths(args)
     before = machine()
     opts = CoreOptions(
-        args.data, args.scenes, args.kitti_sequences, sizes, args.sweep_frames, args.sweep_budget
+        args.data or Path(),
+        args.scenes,
+        args.kitti_sequences,
+        sizes,
+        args.sweep_frames,
+        args.sweep_budget,
     )
     result = bench(opts, progress=lambda m: print(m, file=sys.stderr, flush=True))
     doc = {
@@ -522,8 +555,11 @@ def _check_load(args: argparse.Namespace) -> Path:
         raise UserError(f"--workers {args.workers} must be in 1..64")
     if not (1 <= args.synthetic_boxes <= 10_000):
         raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
+    if args.source != "nuscenes":
+        return Path()  # synthetic frames: no data read
+    args.data = _data(args.data, "or --source synthetic")
     scenes: Path = args.data / "nuscenes" / "centerpoint_val"
-    if args.source == "nuscenes" and not scenes.is_dir():
+    if not scenes.is_dir():
         raise UserError(
             f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
         )
@@ -558,7 +594,7 @@ def run_service(args: argparse.Namespace) -> int:
                 *("--workers", str(args.workers)),
                 *("--queue-size", str(args.queue_size)),
                 *("--source", args.source),
-                *("--data", str(args.data.resolve())),
+                *_data_option(args.data),
                 *("--synthetic-boxes", str(args.synthetic_boxes)),
                 *("--p99-limit", repr(args.p99_limit)),
                 *("--budget", repr(args.budget)),

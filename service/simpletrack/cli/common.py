@@ -10,7 +10,14 @@ from dataclasses import replace
 import zenoh
 
 from simpletrack.cli.errors import UserError
-from simpletrack.session import DEFAULT_LISTEN, ZenohOptions, add_zenoh_args, open_session
+from simpletrack.session import (
+    DEFAULT_LISTEN,
+    ZenohOptions,
+    add_zenoh_args,
+    listen_error,
+    open_session,
+    without_rust_locations,
+)
 
 ZENOH_NOTE = (
     "Zenoh: peer mode by default, connecting to a service on this machine\n"
@@ -56,5 +63,7 @@ def open_client_session(options: ZenohOptions) -> zenoh.Session:
     except zenoh.ZError as exc:
         where = ", ".join(options.connect) or "no endpoint"
         raise UserError(
-            f"cannot open a Zenoh session ({options.mode.value}, {where}): {exc}"
+            listen_error(exc)
+            or f"cannot open a Zenoh session ({options.mode.value}, {where}): "
+            f"{without_rust_locations(exc)}"
         ) from None

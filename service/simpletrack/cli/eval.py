@@ -26,18 +26,27 @@ from simpletrack.datasets.kitti import (
     result_class_names,
     write_tracked,
 )
+from simpletrack.datasets.paths import KITTI as KITTI_DATA
+from simpletrack.datasets.paths import MissingData, data_dir, default_help
 from simpletrack.eval.kitti import METRIC_NAMES, evaluate
 from simpletrack.eval.tracking import track_sequence
 
-EPILOG = """examples:
+EPILOG = """\
+The KITTI folder is --data, else $SIMPLETRACK_DATA/kitti (SIMPLETRACK_DATA: the folder holding
+the datasets); there is no default folder.
+
+examples:
+  export SIMPLETRACK_DATA=~/datasets   # holds kitti/ (or give --data ~/datasets/kitti each time)
+
   # track the 10 train sequences with the kitti preset, write OUT/data_0/*.txt, score them
   simpletrack eval kitti --results-dir out/kitti --json out/kitti/metrics.json
 
   # score existing result files only (e.g. the reference tracker's)
-  simpletrack eval kitti --results ../shared/data/reference/kitti_train/simpletrack/data_0
+  simpletrack eval kitti --results "$SIMPLETRACK_DATA/reference/kitti_train/simpletrack/data_0"
 
-  # two sequences, cars only
-  simpletrack eval kitti --seqs 0000,0002 --classes Car --results-dir out/kitti-car
+  # two sequences, cars only, the KITTI folder given
+  simpletrack eval kitti --data ../shared/data/kitti --seqs 0000,0002 --classes Car \\
+      --results-dir out/kitti-car
 """
 
 # Figures printed as counts rather than percentages.
@@ -68,8 +77,8 @@ def register(sub: Any) -> None:
     k.add_argument(
         "--data",
         type=Path,
-        default=Path("../shared/data/kitti"),
-        help="KITTI folder with detections/pointrcnn, labels, calib (default: %(default)s)",
+        metavar="FOLDER",
+        help=f"KITTI folder with detections/pointrcnn, labels, calib ({default_help(KITTI_DATA)})",
     )
     k.add_argument(
         "--seqs",
@@ -231,6 +240,10 @@ def _track_over_zenoh(
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        args.data = data_dir(args.data, KITTI_DATA)
+    except MissingData as exc:
+        raise UserError(str(exc)) from None
     seqs = _split(args.seqs, "seqs")
     classes = _classes(args.classes)
     labels = args.data / "labels"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from enum import StrEnum
 from pathlib import Path
@@ -24,14 +25,22 @@ from simpletrack.server.settings import (
     LogFormat,
     LogLevel,
     ServiceSettings,
+    check_environment,
     load_settings,
 )
-from simpletrack.session import add_zenoh_args, zenoh_overrides
+from simpletrack.session import (
+    add_zenoh_args,
+    listen_error,
+    without_rust_locations,
+    zenoh_overrides,
+)
 
 EPILOG = """\
 Settings come from defaults, then --config FILE (TOML or YAML), then SIMPLETRACK_* environment
 variables (nested with __, e.g. SIMPLETRACK_ZENOH__MODE=client), then these flags. Every
-setting is listed in docs/SERVICE.md.
+setting is listed in docs/SERVICE.md. A SIMPLETRACK_* variable that is no setting (a typo)
+stops the start; SIMPLETRACK_JIT, SIMPLETRACK_DATA and the native clients' build variables
+are allowed.
 
 key expressions (prefix "fleet" by default):
   in   <prefix>/<vehicle>/<sensor>/detections   DetectionFrame (msgpack, schemas/README.md)
@@ -115,7 +124,8 @@ _TRACKER_FLAGS = ("motion", "output", "vertical_overlap", "tie_order", "coast_sc
 
 
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
-    """The settings the flags, the ``--config`` file and the environment give."""
+    """The settings the flags, the ``--config`` file and the environment give (a
+    ``SIMPLETRACK_*`` variable that is no setting is refused, not ignored)."""
     overrides: dict[str, Any] = {
         k: getattr(args, k) for k in _FLAGS if getattr(args, k) is not None
     }
@@ -126,6 +136,7 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
     if args.config is not None and not args.config.is_file():
         raise UserError(f"--config {args.config}: no such file")
     try:
+        check_environment(os.environ)
         return load_settings(args.config, overrides)
     except ValueError as e:
         raise UserError(str(e)) from None
@@ -153,7 +164,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(
             f"{e.strerror or e}: {getattr(e, 'filename', '') or ''}".rstrip(": ")
         ) from None
-    except zenoh.ZError as e:
-        raise UserError(f"cannot open the Zenoh session: {e}") from None
+    except zenoh.ZError as e:  # a listen port taken (another service?), a router unreachable
+        raise UserError(
+            listen_error(e) or f"cannot open the Zenoh session: {without_rust_locations(e)}"
+        ) from None
     except app.StartError as e:
         raise UserError(str(e)) from None

@@ -23,12 +23,18 @@ from simpletrack.datasets.nuscenes_json import (
     track_scenes,
     write_submission,
 )
+from simpletrack.datasets.paths import NUSCENES, MissingData, data_dir, default_help
 from simpletrack.eval.parity import compare, group_rows
 from simpletrack.eval.track_nuscenes import track_scene
 
-EPILOG = """examples:
+EPILOG = """\
+The detection files are --data, else $SIMPLETRACK_DATA/nuscenes/centerpoint_val
+(SIMPLETRACK_DATA: the folder holding the datasets); there is no default folder.
+
+examples:
   simpletrack track nuscenes --data ../shared/data/nuscenes/centerpoint_val --out out/nusc.jsonl
-  simpletrack track nuscenes --scenes scene-0003,scene-0012 --vertical-overlap reference \\
+  simpletrack track nuscenes --data ../shared/data/nuscenes/centerpoint_val \\
+      --scenes scene-0003,scene-0012 --vertical-overlap reference \\
       --reference ../shared/data/reference/nuscenes/simpletrack_nuscenes_val.jsonl.gz
   simpletrack track nuscenes --detections results_val.json \\
       --samples /data/nuscenes/v1.0-trainval --out out/tracking_val.json
@@ -44,7 +50,12 @@ def register(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("dataset", choices=["nuscenes"], help="layout of the detection files")
-    p.add_argument("--data", type=Path, default=Path("../shared/data/nuscenes/centerpoint_val"))
+    p.add_argument(
+        "--data",
+        type=Path,
+        metavar="FOLDER",
+        help=f"nuScenes detection files, scene-*.txt ({default_help(NUSCENES)})",
+    )
     p.add_argument("--scenes", default="", help="comma-separated scene names (default: all)")
     p.add_argument("--preset", default="nuscenes")
     p.add_argument(
@@ -93,6 +104,10 @@ def run(args: argparse.Namespace) -> int:
         return _run_detections(args)
     if args.samples is not None:
         raise UserError("--samples goes with --detections")
+    try:
+        args.data = data_dir(args.data, NUSCENES)
+    except MissingData as exc:
+        raise UserError(str(exc)) from None
     if not args.data.is_dir():
         raise UserError(f"--data {args.data} is not a directory")
     try:

@@ -3,7 +3,8 @@
 - ``import numba`` costs ~0.4 s, which ``import simpletrack.core`` (and every command) must not
   pay: ``@kernel`` returns a small wrapper that imports numba and compiles on its first call.
   ``preload()`` compiles (or loads from numba's on-disk cache) every kernel now, for a service
-  whose first frame must not wait.
+  whose first frame must not wait; ``cache_state()`` tells beforehand how many it will have
+  to compile (a cold cache: the first start after an install or a change of the kernels).
 - ``nogil``: a worker thread running a kernel lets the others run theirs on the other cores.
   ``cache``: compiled once per machine (numba's cache beside the source, or the user's cache
   when that is read-only), loaded in milliseconds afterwards.
@@ -17,11 +18,13 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import threading
 import types
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import Any, Generic, ParamSpec, TypeVar
 
 import numpy as np
@@ -29,7 +32,16 @@ import numpy as np
 P = ParamSpec("P")
 R = TypeVar("R")
 
-__all__ = ["Kernel", "compiled", "helper", "inline", "kernel", "preload"]
+__all__ = [
+    "CacheState",
+    "Kernel",
+    "cache_state",
+    "compiled",
+    "helper",
+    "inline",
+    "kernel",
+    "preload",
+]
 
 ENV_VAR = "SIMPLETRACK_JIT"
 # Modules whose kernels preload() compiles: importing them registers their kernels.
@@ -129,12 +141,54 @@ def kernel(signature: str) -> Callable[[Callable[P, R]], Kernel[P, R]]:
 
 def preload() -> None:
     """Compile or load every kernel of the core now."""
-    import importlib
+    for k in _registered():
+        k.load()
 
+
+@dataclass(frozen=True, slots=True)
+class CacheState:
+    """What ``preload()`` will find: of ``kernels`` not loaded yet, ``cold`` are missing from
+    numba's on-disk cache (compiled, seconds each); ``location`` is the cache's folder."""
+
+    kernels: int
+    cold: int
+    location: str | None
+
+
+def cache_state(kernels: Iterable[Kernel[Any, Any]] | None = None) -> CacheState:
+    """Probe numba's on-disk cache for every kernel ``preload()`` would load (or these),
+    compiling nothing: a kernel is warm when the cache's index (the numba version's, for the
+    source file as it is now) holds its signature for this CPU. Without numba (or disabled)
+    nothing compiles. Numba's cache layout is not public: if probing fails, a kernel counts
+    as cold."""
+    pending = [k for k in (_registered() if kernels is None else kernels) if k._impl is None]
+    with _lock:
+        numba = _numba_module()
+    if numba is False or not pending:
+        return CacheState(len(pending), 0, None)
+    try:
+        caching: Any = importlib.import_module("numba.core.caching")
+        registry: Any = importlib.import_module("numba.core.registry")
+        codegen = registry.cpu_target.target_context.codegen()
+    except Exception:
+        return CacheState(len(pending), len(pending), None)
+    cold, location = 0, None
+    for k in pending:
+        try:
+            cache = caching.FunctionCache(k.py)
+            location = location or str(cache.cache_path)
+            warm = cache._index_key(k.signature, codegen) in cache._cache_file._load_index()
+        except Exception:
+            warm = False
+        cold += not warm
+    return CacheState(len(pending), cold, location)
+
+
+def _registered() -> list[Kernel[Any, Any]]:
+    """Every kernel of the core (importing their modules registers them)."""
     for name in _KERNEL_MODULES:
         importlib.import_module(name)
-    for k in list(_kernels):
-        k.load()
+    return list(_kernels)
 
 
 def compiled() -> bool:

@@ -2,8 +2,9 @@
 and owns the start-up and shutdown order.
 
 Start: metrics HTTP → Zenoh session (a client started before its router waits for it, not
-ready) → restore snapshots → workers → subscriber, queryables, liveliness token → ready. A
-client is ready only while it is connected to a router. Stop (SIGTERM/SIGINT): not ready → undeclare the subscriber (no new
+ready) → kernels (loaded from numba's cache, or compiled: tens of seconds, logged) → restore
+snapshots → workers → subscriber, queryables, liveliness token → ready; until then /readyz's
+503 says which step is under way. A client is ready only while it is connected to a router. Stop (SIGTERM/SIGINT): not ready → undeclare the subscriber (no new
 frames) → workers finish their queues (bounded by ``shutdown_timeout_s``) and snapshot every
 sensor → snapshot writer flushes → session closed → HTTP closed.
 """
@@ -63,6 +64,9 @@ log = get_logger("service")
 # first view then holds the members already there (tokens arrive within milliseconds).
 SETTLE_S = 0.3
 MAX_PUBLISHED = 1_000_000
+# Compiling every kernel (a cold numba cache: the first start after an install) measured
+# 30-45 s on 2 busy cores; a warm cache loads them in ~1 s.
+COMPILE_ALL_S = 40.0
 
 
 class StartError(RuntimeError):
@@ -81,6 +85,8 @@ class Service:
         self.stop_requested = threading.Event()
         self.started_ns = time.time_ns()
         self._ready = False
+        # Why /readyz answers 503 while starting: the start-up step under way.
+        self._phase = "starting"
         self._http: HttpEndpoint | None = None
         self._session: zenoh.Session | None = None
         self._writer: SnapshotWriter | None = None
@@ -132,7 +138,7 @@ class Service:
             s.state_dir.mkdir(parents=True, exist_ok=True)
             self._writer = SnapshotWriter()
         solvers.preload()  # the first frame of an optimal matcher must not pay the import
-        jit.preload()  # nor the first frame the kernels' compile (cached on disk: ~0.35 s)
+        self._load_kernels()  # nor the first frame the kernels' compile
         digest = config_digest(self.config)
         self._shared = shared = Shared(
             membership=self.membership,
@@ -291,10 +297,39 @@ class Service:
             members=len(self.membership.members),
         )
 
+    def _load_kernels(self) -> None:
+        """Compile the core's kernels now, or load them from numba's on-disk cache (~1 s).
+        A cold cache takes tens of seconds: said in the log, before and after, and on /readyz."""
+        state = jit.cache_state()
+        started = time.monotonic()
+        if state.cold:
+            self._phase = "compiling kernels (the first start after an install; cached after)"
+            log.info(
+                "compiling_kernels",
+                kernels=state.cold,
+                of=state.kernels,
+                estimate_s=round(COMPILE_ALL_S * state.cold / state.kernels),
+                cache=state.location,
+                why="numba's cache holds no compiled code for them yet; later starts load it",
+            )
+        jit.preload()
+        self._phase = "starting"
+        seconds = round(time.monotonic() - started, 1)
+        if state.cold:
+            log.info("kernels_compiled", kernels=state.cold, seconds=seconds, cache=state.location)
+        else:
+            log.debug("kernels_loaded", kernels=state.kernels, seconds=seconds)
+
     def _bind_http(self) -> HttpEndpoint:
         s = self.settings
         try:
-            return HttpEndpoint(self.metrics, s.metrics_host, s.metrics_port, self.ready)
+            return HttpEndpoint(
+                self.metrics,
+                s.metrics_host,
+                s.metrics_port,
+                self.ready,
+                why_not=self.not_ready_reason,
+            )
         except OSError as e:
             where = f"metrics port {s.metrics_port} on {s.metrics_host}"
             if e.errno == errno.EADDRINUSE:
@@ -310,8 +345,10 @@ class Service:
         if not (self._client and self.settings.wait_for_router):
             return open_session(options)
         log.info("waiting_for_router", connect=",".join(options.connect))
+        self._phase = f"waiting for a Zenoh router ({','.join(options.connect)})"
         session = open_session_waiting(options, self.stop_requested)
         if session is not None:
+            self._phase = "starting"
             log.info("router_reached", connect=",".join(options.connect))
         return session
 
@@ -351,6 +388,14 @@ class Service:
         # A client without a router receives nothing: not ready, so that traffic and alerts
         # see the outage.
         return not self._client or self._routers_connected() > 0
+
+    def not_ready_reason(self) -> str:
+        """Why ``ready()`` is false (the body of /readyz's 503)."""
+        if not self._ready:
+            return "stopping" if self.stop_requested.is_set() else self._phase
+        if self._session is None or self._session.is_closed():
+            return "the Zenoh session is closed"
+        return "no Zenoh router connected (client mode)"
 
     def _worker_of(self, vehicle: str, sensor: str) -> Worker:
         """The worker a stream's frames go to (the intake's routing: a fused sensor's
@@ -648,6 +693,7 @@ class Service:
         still answers; only then close."""
         s = self.settings
         self._ready = False
+        self._phase = "stopping"
         log.info("service_stopping", instance=s.instance)
         if self._subscriber is not None:
             undeclare(*self._subscriber)

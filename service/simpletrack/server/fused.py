@@ -233,7 +233,7 @@ class FusedFrames:
         now_ns = time.time_ns()
         t3 = time.perf_counter()
         m.stages["publish"].observe(t3 - t2)
-        m.end_to_end.observe(max(0.0, (now_ns - arrival.stamp_ns) * 1e-9))
+        m.observe_end_to_end(arrival.stamp_ns, item.received_ns, now_ns, state.vehicle)
         m.service_latency.observe((now_ns - item.received_ns) * 1e-9)
         m.count_tracked(state.vehicle)
         m.active_tracks.inc(state.tracked(len(wire)))

@@ -1,7 +1,9 @@
 """Prometheus metrics and the HTTP endpoint serving /metrics, /healthz and /readyz.
 
 Label cardinality is bounded: ``reason``, ``stage`` and ``cause`` are enums; ``vehicle`` only when
-enabled, and capped (later vehicles share ``_other``); never a track or sensor id.
+enabled, and capped (later vehicles share ``_other``); never a track id, and a sensor only in
+``simpletrack_clock_offset_seconds``, for at most ten sensors whose clocks are off. No
+``_created`` series: a counter or histogram is its samples alone.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from prometheus_client import (
     Histogram,
     Info,
     ProcessCollector,
+    disable_created_metrics,
     generate_latest,
 )
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
@@ -28,6 +31,7 @@ from prometheus_client.registry import Collector
 
 from simpletrack.core.vehicle import Condition
 from simpletrack.server.plausibility import Cause
+from simpletrack.server.sensors import CLOCK_TOLERANCE_S
 from simpletrack.wire.reasons import DROP_REASONS, SCHEMA_VERSION, ErrorReason
 
 if TYPE_CHECKING:
@@ -56,6 +60,14 @@ LATENCY_BUCKETS = (
 )
 STAGES = ("queue", "decode", "track", "publish")
 OTHER_VEHICLES = "_other"
+CLOCK_SIDES = ("ahead", "behind")
+# Sensors named in simpletrack_clock_offset_seconds: those off by more than the tolerance,
+# furthest first, at most this many (the one series labelled by sensor: bounded this way).
+CLOCK_SENSORS_SHOWN = 10
+
+# Every counter and histogram would also export a ``<name>_created`` series (its creation
+# time): twice the series for nothing a dashboard reads. Process-wide, before any is made.
+disable_created_metrics()  # type: ignore[no-untyped-call]  # untyped in prometheus_client
 
 
 def package_version(name: str) -> str:
@@ -103,8 +115,16 @@ class Metrics:
         )
         self.end_to_end = Histogram(
             "simpletrack_end_to_end_seconds",
-            "Sensor stamp_ns to tracks published (needs clocks in sync with the sensors)",
+            "Sensor stamp_ns to tracks published (needs clocks in sync with the sensors; "
+            "frames stamped ahead of the service's clock are not in it)",
             buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.clock_ahead = Counter(
+            "simpletrack_clock_ahead_frames",
+            "Frames stamped ahead of the service's clock at receipt (a sensor clock ahead, or "
+            "a replay): tracked, but no latency of theirs is in simpletrack_end_to_end_seconds",
+            v,
             registry=r,
         )
         self.service_latency = Histogram(
@@ -252,6 +272,10 @@ class Metrics:
         # from the budget the service hands ``watch_burst`` (0 until then).
         self.burst: BurstBudget | None = None
         r.register(_BurstCollector(self))
+        # Each worker's sensors' clock estimates (server/plausibility.py LeastLag), read at
+        # each scrape: two figures per side, whatever the number of sensors.
+        self.clock_sources: list[Callable[[], Iterable[tuple[str, int]]]] = []
+        r.register(_ClockCollector(self))
         # CPU, resident memory, open fds: what a leak or a busy loop shows first (the
         # default registry has these; this one is our own). Empty off Linux.
         ProcessCollector(registry=r)
@@ -295,6 +319,23 @@ class Metrics:
 
     def count_missed(self, vehicle: str, n: int) -> None:
         self.dropped.labels(reason=ErrorReason.MISSED.value, **self.labels(vehicle)).inc(n)
+
+    def observe_end_to_end(
+        self, stamp_ns: int, received_ns: int, published_ns: int, vehicle: str
+    ) -> None:
+        """A tracked frame's stamp to its tracks published, in ``end_to_end``; a frame stamped
+        ahead of the service's clock (received or published before its stamp) counts in
+        ``clock_ahead`` instead: a negative interval is a clock's offset, not a latency."""
+        if stamp_ns > received_ns or stamp_ns > published_ns:
+            labels = self.labels(vehicle)
+            (self.clock_ahead.labels(**labels) if labels else self.clock_ahead).inc()
+        else:
+            self.end_to_end.observe((published_ns - stamp_ns) * 1e-9)
+
+    def watch_clocks(self, source: Callable[[], Iterable[tuple[str, int]]]) -> None:
+        """Export the sensor clocks ``source`` estimates: (``vehicle/sensor``, its least
+        receipt - stamp lately in ns) of each sensor a worker heard in the last 20 s."""
+        self.clock_sources.append(source)
 
     def count_implausible(self, cause: Cause, vehicle: str) -> None:
         self.implausible.labels(cause=cause.value, **self.labels(vehicle)).inc()
@@ -346,10 +387,71 @@ class _BurstCollector(Collector):
         )
 
 
-class HttpEndpoint:
-    """/metrics (Prometheus text), /healthz (process alive), /readyz (``ready()`` is true)."""
+class _ClockCollector(Collector):
+    def __init__(self, metrics: Metrics) -> None:
+        self._metrics = metrics
 
-    def __init__(self, metrics: Metrics, host: str, port: int, ready: Callable[[], bool]) -> None:
+    def collect(self) -> Iterable[Metric]:
+        tol = CLOCK_TOLERANCE_S * 1e9
+        furthest, off = dict.fromkeys(CLOCK_SIDES, 0.0), dict.fromkeys(CLOCK_SIDES, 0.0)
+        named: list[tuple[int, str]] = []
+        for source in list(self._metrics.clock_sources):
+            for sensor, lag in source():
+                side = "ahead" if lag < 0 else "behind"
+                furthest[side] = max(furthest[side], abs(lag) * 1e-9)
+                if abs(lag) > tol:
+                    off[side] += 1
+                    named.append((lag, sensor))
+        yield _by_side(
+            GaugeMetricFamily(
+                "simpletrack_clock_offset_max_seconds",
+                "The sensor clock furthest from the service's, by side, over the sensors heard "
+                "in the last 20 s: each sensor's least (receipt - stamp) of its frames of the "
+                "last 10-20 s; ahead: its stamps lead the service's clock by at least this; "
+                "behind: its clock offset plus its fastest delivery (0: none)",
+                labels=["side"],
+            ),
+            furthest,
+        )
+        yield _by_side(
+            GaugeMetricFamily(
+                "simpletrack_clock_off_sensors",
+                f"Sensors heard in the last 20 s whose clock is more than {CLOCK_TOLERANCE_S:g} s "
+                f"ahead of or behind the service's (by the same estimate), by side",
+                labels=["side"],
+            ),
+            off,
+        )
+        shown = GaugeMetricFamily(
+            "simpletrack_clock_offset_seconds",
+            f"Each sensor whose clock is more than {CLOCK_TOLERANCE_S:g} s off the service's "
+            f"(the {CLOCK_SENSORS_SHOWN} furthest; all of them in simpletrack_clock_off_sensors): "
+            "stamp - receipt by the same estimate, > 0 ahead, < 0 behind (offset plus delivery)",
+            labels=["sensor"],
+        )
+        for lag, sensor in sorted(named, key=lambda n: (-abs(n[0]), n[1]))[:CLOCK_SENSORS_SHOWN]:
+            shown.add_metric([sensor], -lag * 1e-9)
+        yield shown
+
+
+def _by_side(family: GaugeMetricFamily, values: dict[str, float]) -> Metric:
+    for side in CLOCK_SIDES:
+        family.add_metric([side], values[side])
+    return family
+
+
+class HttpEndpoint:
+    """/metrics (Prometheus text), /healthz (process alive), /readyz (``ready()`` is true;
+    503's body says ``why_not()``)."""
+
+    def __init__(
+        self,
+        metrics: Metrics,
+        host: str,
+        port: int,
+        ready: Callable[[], bool],
+        why_not: Callable[[], str] | None = None,
+    ) -> None:
         registry = metrics.registry
 
         class Handler(BaseHTTPRequestHandler):
@@ -360,8 +462,11 @@ class HttpEndpoint:
                 elif path == "/healthz":
                     self._send(200, b"ok\n")
                 elif path == "/readyz":
-                    ok = ready()
-                    self._send(200 if ok else 503, b"ready\n" if ok else b"not ready\n")
+                    if ready():
+                        self._send(200, b"ready\n")
+                    else:
+                        why = f": {why_not()}" if why_not is not None else ""
+                        self._send(503, f"not ready{why}\n".encode())
                 else:
                     self._send(404, b"not found: try /metrics, /healthz, /readyz\n")
 
@@ -393,7 +498,9 @@ class HttpEndpoint:
 def reference_markdown() -> str:
     """The metrics table of docs/SERVICE.md, from a fresh registry (so it cannot drift)."""
     lines = ["| metric | type | labels | meaning |", "|---|---|---|---|"]
-    for family in Metrics().registry.collect():
+    metrics = Metrics()
+    metrics.watch_clocks(lambda: [("vehicle/sensor", -2 * 10**9)])  # a sample shows the label
+    for family in metrics.registry.collect():
         labels = sorted({k for s in family.samples for k in s.labels if k != "le"})
         name = {
             "counter": f"{family.name}_total",

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from simpletrack.core.config import TrackerConfig
+from simpletrack.server.sensors import CLOCK_TOLERANCE_S
 from simpletrack.wire.columns import I32, BoxArrays
 
 F64 = npt.NDArray[np.float64]
@@ -38,10 +39,13 @@ MAX_YAW_RAD = 2.5 * math.pi
 # A frame whose boxes can start no track at all is only suspicious when it has many boxes:
 # KITTI's PointRCNN frames in which no box reaches its class's score_high have at most 6.
 MIN_BOXES_UNDER_THRESHOLD = 16
-# Sensor stamp against the service's clock at receipt. Synchronised clocks (NTP, PTP) agree
-# to milliseconds; a minute apart is a wrong unit, a wrong clock or a replay.
-MAX_STAMP_OFFSET_S = 60.0
-_DAY_NS = 86_400 * 10**9
+# Sensor stamp against the service's clock at receipt: further apart than CLOCK_TOLERANCE_S
+# (server/sensors.py, 1 s) is a wrong unit, a wrong clock or a replay. A frame stamped ahead
+# is one at once (nothing arrives before it is captured); one stamped behind only when its
+# sensor's least delay lately is (LeastLag): a single late frame is a delivery's, not a clock's.
+_DAY_NS = 86_400 * 10**9  # a stamp read in another unit lands this close to the receipt
+# LeastLag's window: a clock stepped back is relearned within two of them.
+CLOCK_WINDOW_NS = 10 * 10**9
 
 
 class Cause(StrEnum):
@@ -63,6 +67,45 @@ class Finding:
     cause: Cause
     hint: str  # the likely cause, for the log line
     value: float  # the figure the hint quotes
+
+
+class LeastLag:
+    """A sensor's least ``received_ns - stamp_ns`` over its frames of the last 10 to 20 s
+    (two windows of ``CLOCK_WINDOW_NS``; the older is dropped as a new one opens): delivery
+    only ever adds to a frame's, so the least is the sensor's clock offset plus its fastest
+    delivery, the standard estimate of the offset. Negative: the sensor's stamps run ahead of
+    the service's clock by at least that much. Two integers a frame; times are receipts."""
+
+    __slots__ = ("_cur", "_prev", "_until", "last_ns")
+
+    def __init__(self) -> None:
+        self._cur: int | None = None  # the least of the window open now
+        self._prev: int | None = None  # the least of the window before it (None: no frame)
+        self._until = 0  # when the open window closes
+        self.last_ns = 0  # receipt of the last frame seen
+
+    def see(self, stamp_ns: int, received_ns: int) -> int:
+        """Take a frame in; its sensor's least delay now, this frame included."""
+        lag, w = received_ns - stamp_ns, CLOCK_WINDOW_NS
+        if self._cur is None or received_ns < self._until - 2 * w:  # first, or clock set back
+            self._cur, self._prev, self._until = lag, None, received_ns + w
+        elif received_ns >= self._until:
+            self._prev = self._cur if received_ns < self._until + w else None
+            self._cur, self._until = lag, received_ns + w
+        elif lag < self._cur:
+            self._cur = lag
+        self.last_ns = received_ns
+        return self.least
+
+    @property
+    def least(self) -> int:
+        """ns; 0 before any frame."""
+        cur = 0 if self._cur is None else self._cur
+        return cur if self._prev is None else min(cur, self._prev)
+
+    def fresh(self, now_ns: int) -> bool:
+        """A frame was seen within the last two windows (the least speaks of now)."""
+        return self._cur is not None and now_ns - self.last_ns <= 2 * CLOCK_WINDOW_NS
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,10 +131,12 @@ def check_frame(
     codes: I32 | None = None,
     thresholds: StartThresholds | None = None,
     key_frame: bool = True,
+    least_lag_ns: int | None = None,
 ) -> list[Finding]:
     """Every implausibility of one frame (empty: nothing looks wrong). ``codes`` are the
-    boxes' tracker class codes (-1: ignored class), needed with ``thresholds``."""
-    found = _stamp(stamp_ns, received_ns)
+    boxes' tracker class codes (-1: ignored class), needed with ``thresholds``;
+    ``least_lag_ns`` its sensor's least delay lately (``LeastLag``; None: this frame's own)."""
+    found = _stamp(stamp_ns, received_ns, least_lag_ns)
     if not len(boxes):
         return found
     # The median (a sort) and the span only when one plain reduction says they could trip.
@@ -169,9 +214,9 @@ def _scores(
     return found
 
 
-def _stamp(stamp_ns: int, received_ns: int) -> list[Finding]:
-    offset_s = (received_ns - stamp_ns) * 1e-9
-    if abs(offset_s) <= MAX_STAMP_OFFSET_S:
+def _stamp(stamp_ns: int, received_ns: int, least_lag_ns: int | None) -> list[Finding]:
+    lag_ns = received_ns - stamp_ns
+    if abs(lag_ns) <= CLOCK_TOLERANCE_S * 1e9:
         return []
     # Read as another unit, does the stamp land within a day of the receipt? Then that unit
     # is the likely one (a day: clocks that are off as well still read as the unit).
@@ -183,12 +228,18 @@ def _stamp(stamp_ns: int, received_ns: int) -> list[Finding]:
         if abs(stamp_ns * scale - received_ns) < _DAY_NS:
             hint = f"stamp looks like {unit} (stamp_ns {stamp_ns}); stamp_ns is nanoseconds"
             return [Finding(cause, hint, float(stamp_ns))]
+    if lag_ns > 0 and least_lag_ns is not None:
+        lag_ns = min(lag_ns, least_lag_ns)  # behind: by the sensor's least delay lately
+        if lag_ns <= CLOCK_TOLERANCE_S * 1e9:
+            return []  # a late frame (a recovered one, a stall): its sensor's others were not
+    offset_s = lag_ns * 1e-9
     ahead = "behind" if offset_s > 0 else "ahead of"
+    size = f"{abs(offset_s):.1f}" if abs(offset_s) < 100 else f"{abs(offset_s):.0f}"
     hint = (
-        f"the vehicle's clock is {abs(offset_s):.0f} s {ahead} the service's, or this is a "
+        f"the vehicle's clock is {size} s {ahead} the service's, or this is a "
         f"replay (stamps since boot count too)"
     )
     return [Finding(Cause.STAMP_OFFSET, hint, offset_s)]
 
 
-__all__ = ["Cause", "Finding", "StartThresholds", "check_frame"]
+__all__ = ["Cause", "Finding", "LeastLag", "StartThresholds", "check_frame"]

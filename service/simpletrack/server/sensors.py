@@ -211,13 +211,21 @@ class Order(Enum):
 RESETS = frozenset({Order.RESET_GAP, Order.RESET_TIME_BACKWARDS, Order.RESET_RESTART})
 
 
+# How far a sensor's clock may be from the service's and still agree with it: synchronised
+# clocks (NTP, PTP) agree to milliseconds and delivery adds tens; a second is neither. The one
+# figure of the undo rule (below) and of the ``stamp_offset`` warning and the clock metrics
+# (plausibility.py, metrics.py). A fused vehicle judges its sensors' clocks more tightly,
+# against each other: its ``fusion.clock_tolerance_s`` (0.1 s by default).
+CLOCK_TOLERANCE_S = 1.0
+
+
 @dataclass(frozen=True, slots=True)
 class OrderRules:
     reset_gap_s: float  # a stamp step this far ahead of the service's clock resets
     reset_backward_s: float  # a stamp further behind than this resets it (less: refused)
     # How far a frame's stamp step may differ from the service's clock step and still count
     # as agreeing with it (network jitter, bursts): only the undo rule reads it.
-    clock_tolerance_s: float = 1.0
+    clock_tolerance_s: float = CLOCK_TOLERANCE_S
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,5 +1,8 @@
 """Service settings: defaults, then a TOML/YAML file (``--config``), then ``SIMPLETRACK_*``
 environment variables (nested with ``__``, e.g. ``SIMPLETRACK_ZENOH__MODE=client``), then flags.
+A ``SIMPLETRACK_*`` variable that is no setting (nor one of ``OTHER_ENV_VARS``) is refused by
+``check_environment``: pydantic-settings would ignore it, leaving its setting at the default.
+A YAML file's mistakes are named with their line and column.
 
 ``python -m simpletrack.server.settings`` prints the reference table; ``--write docs/SERVICE.md`` refreshes
 the table in the docs (a test fails when it drifts).
@@ -8,17 +11,20 @@ the table in the docs (a test fails when it drifts).
 from __future__ import annotations
 
 import argparse
+import difflib
 import hashlib
 import json
+import os
 import re
 import socket
 import sys
 import tomllib
+import types
 from collections.abc import Iterator, Mapping
 from contextvars import ContextVar
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args, get_origin
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 import yaml
 from pydantic import (
@@ -41,7 +47,7 @@ from pydantic_settings import (
 
 from simpletrack.core.config import PRESETS, TrackerConfig, preset
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
-from simpletrack.server.messages import format_error
+from simpletrack.server.messages import Where, format_error
 from simpletrack.server.tracker_settings import (
     OneOf,
     PresetName,
@@ -64,6 +70,12 @@ from simpletrack.wire.models import NAME_PATTERN
 from simpletrack.wire.reasons import TRACK_EPOCH_SCHEMA_VERSION
 
 ENV_PREFIX = "SIMPLETRACK_"
+# SIMPLETRACK_* variables that are no setting, read by other parts of the project: the
+# kernels' compiler (core/jit.py), the datasets' folder, the native clients' test builds
+# (tests/native). check_environment refuses any other that is no setting.
+OTHER_ENV_VARS = frozenset(
+    {"SIMPLETRACK_JIT", "SIMPLETRACK_DATA", "SIMPLETRACK_CARGO_TARGET", "SIMPLETRACK_CPP_BUILD"}
+)
 DOC_COMMAND = "python -m simpletrack.server.settings --write <this file>"
 
 
@@ -489,6 +501,8 @@ def read_mapping(path: Path) -> dict[str, Any]:
             data = yaml.safe_load(text) or {}
         else:
             raise ValueError(f"{path}: use a .toml, .yaml or .yml file")
+    except yaml.MarkedYAMLError as e:
+        raise ValueError(_yaml_syntax_error(path, e)) from None
     except (tomllib.TOMLDecodeError, yaml.YAMLError) as e:
         raise ValueError(f"{path}: {e}".splitlines()[0]) from None
     if not isinstance(data, dict):
@@ -499,17 +513,162 @@ def read_mapping(path: Path) -> dict[str, Any]:
 def load_settings(
     config_file: Path | None = None, overrides: Mapping[str, Any] | None = None
 ) -> ServiceSettings:
-    """Layer defaults < file < environment < ``overrides`` (flags). ValueError on bad input."""
+    """Layer defaults < file < environment < ``overrides`` (flags). ValueError on bad input;
+    a value from a YAML file is named with its line and column."""
     file_values = read_mapping(config_file) if config_file is not None else {}
     token = _FILE_VALUES.set(file_values)
     try:
         return ServiceSettings(**dict(overrides or {}))
     except ValidationError as e:
-        raise ValueError(format_error(e)) from None
+        where = _yaml_places(config_file, overrides) if config_file is not None else None
+        raise ValueError(format_error(e, where=where)) from None
     except EnvValueError as e:
         raise ValueError(str(e)) from None
     finally:
         _FILE_VALUES.reset(token)
+
+
+def _yaml_syntax_error(path: Path, e: yaml.MarkedYAMLError) -> str:
+    """``file:line:column: problem (context at line N)``, from PyYAML's marks (0-based)."""
+    mark = e.problem_mark or e.context_mark
+    where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+    problem = e.problem or e.context or "not valid YAML"
+    context = ""
+    if e.context and e.problem and e.context_mark is not None:
+        context = f" ({e.context} at line {e.context_mark.line + 1})"
+    return f"{where}: {problem}{context}"
+
+
+def _yaml_places(path: Path, overrides: Mapping[str, Any] | None) -> Where | None:
+    """For a YAML settings file: where the value at a pydantic location was written
+    (``file:line:column`` of its key), unless a flag or a variable gave it instead."""
+    if path.suffix not in {".yaml", ".yml"}:
+        return None
+    try:
+        root = yaml.compose(path.read_text(), Loader=yaml.SafeLoader)
+    except (OSError, yaml.YAMLError):
+        return None
+    if root is None:
+        return None
+    given = set(_paths(dict(overrides or {})))
+    given |= {env for env in map(_env_path, os.environ) if env is not None}
+
+    def where(loc: tuple[str | int, ...], text: str) -> str | None:
+        if not loc:  # a check of the whole model: its message starts with the setting
+            named = re.match(r"([A-Za-z_][\w-]*(?:\.[\w-]+)*): ", text)
+            loc = tuple(named[1].split(".")) if named else ()
+        keys = tuple(str(p) for p in loc)
+        if not keys or any(g[: len(keys)] == keys or keys[: len(g)] == g for g in given):
+            return None
+        mark = _yaml_mark(root, keys)
+        return f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else None
+
+    return where
+
+
+def _yaml_mark(node: yaml.Node, keys: tuple[str, ...]) -> yaml.Mark | None:
+    """The mark of the deepest key (or list item) along ``keys`` present in the document."""
+    mark = None
+    for key in keys:
+        if isinstance(node, yaml.MappingNode):
+            found = next((kv for kv in node.value if str(kv[0].value) == key), None)
+            if found is None:
+                break
+            mark, node = found[0].start_mark, found[1]
+        elif isinstance(node, yaml.SequenceNode) and key.isdigit() and int(key) < len(node.value):
+            node = node.value[int(key)]
+            mark = node.start_mark
+        else:
+            break
+    return mark
+
+
+def _paths(values: Mapping[str, Any], at: tuple[str, ...] = ()) -> Iterator[tuple[str, ...]]:
+    for key, value in values.items():
+        if isinstance(value, Mapping) and value:
+            yield from _paths(value, (*at, str(key)))
+        else:
+            yield (*at, str(key))
+
+
+# --- SIMPLETRACK_* variables --------------------------------------------------------------
+
+
+def _env_path(name: str) -> tuple[str, ...] | None:
+    """The settings path a variable sets (``SIMPLETRACK_ZENOH__MODE``: zenoh, mode), or None
+    for a variable of another kind. Names are case-insensitive, as pydantic-settings reads them."""
+    upper = name.upper()
+    if not upper.startswith(ENV_PREFIX) or upper in OTHER_ENV_VARS:
+        return None
+    return tuple(upper[len(ENV_PREFIX) :].lower().split("__"))
+
+
+def _unknown_at(annotation: Any, parts: tuple[str, ...]) -> tuple[int, type[BaseModel]] | None:
+    """None when ``parts`` name a setting (or a place inside one) of ``annotation``; else
+    the index of the first part that does not, and the model it is no field of."""
+    origin = get_origin(annotation)
+    if origin is Annotated:
+        return _unknown_at(get_args(annotation)[0], parts)
+    if origin is Union or origin is types.UnionType:
+        misses = []
+        for arg in get_args(annotation):
+            miss = _unknown_at(arg, parts)
+            if miss is None:
+                return None
+            misses.append(miss)
+        return max(misses, key=lambda m: m[0])
+    if not parts or annotation is Any:
+        return None
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        field = annotation.model_fields.get(parts[0])
+        if field is None:
+            return 0, annotation
+        miss = _unknown_at(field.annotation, parts[1:])
+        return None if miss is None else (miss[0] + 1, miss[1])
+    if origin is dict:  # a key of the user's (a sensor's name), then its value
+        miss = _unknown_at(get_args(annotation)[1], parts[1:])
+        return None if miss is None else (miss[0] + 1, miss[1])
+    return 0, _Leaf  # a plain value has no fields
+
+
+class _Leaf(BaseModel):
+    """What a plain setting has inside: nothing."""
+
+
+def _names(model: type[BaseModel]) -> Iterator[str]:
+    """The variable names (after the prefix, lower case) of every setting of ``model``."""
+    for name, info in model.model_fields.items():
+        yield name
+        kind = info.annotation
+        if isinstance(kind, type) and issubclass(kind, BaseModel):
+            yield from (f"{name}__{sub}" for sub in _names(kind))
+
+
+def check_environment(environ: Mapping[str, str]) -> None:
+    """Refuse a ``SIMPLETRACK_*`` variable that is neither a setting nor one of
+    ``OTHER_ENV_VARS`` (ValueError naming it, and the closest known name): a misspelt one
+    would otherwise be ignored, its setting left at the default without a word."""
+    for name in sorted(environ):
+        parts = _env_path(name)
+        if parts is None:
+            continue
+        miss = _unknown_at(ServiceSettings, parts)
+        if miss is None:
+            continue
+        at, model = miss
+        known = list(_names(model))
+        if at == 0:
+            known += [n[len(ENV_PREFIX) :].lower() for n in OTHER_ENV_VARS]
+        head = ENV_PREFIX + "".join(f"{p.upper()}__" for p in parts[:at])
+        close = difflib.get_close_matches("__".join(parts[at:]), known, n=1, cutoff=0.6)
+        if model is _Leaf:  # a plain setting given a field: SIMPLETRACK_WORKERS__MAX
+            hint = f"did you mean {head.rstrip('_')}? "
+        else:
+            hint = f"did you mean {head}{close[0].upper()}? " if close else ""
+        raise ValueError(
+            f"environment variable {name} is no simpletrack setting: {hint}(unset it to "
+            "start; every setting's variable: docs/SERVICE.md)"
+        )
 
 
 def config_digest(config: TrackerConfig) -> str:

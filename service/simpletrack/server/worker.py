@@ -41,7 +41,13 @@ from simpletrack.server.intake import BurstBudget, Dropped, Inbound, Kind, WorkQ
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import Outbox, congestion_control, dropped, missed_notice
-from simpletrack.server.plausibility import Cause, Finding, StartThresholds, check_frame
+from simpletrack.server.plausibility import (
+    Cause,
+    Finding,
+    LeastLag,
+    StartThresholds,
+    check_frame,
+)
 from simpletrack.server.registry import SensorRegistry
 from simpletrack.server.sensors import (
     Arrival,
@@ -80,6 +86,7 @@ log = get_logger("pool")  # the logger of these lines since before the split (do
 NAME_RE = re.compile(NAME_PATTERN)
 HOUSEKEEPING_S = 0.5
 _WARNED_CAP = 10_000  # sensors whose logged causes are remembered (see Worker._warned)
+_CLOCKS_CAP = 16_384  # sensors whose clock is estimated (past it the longest known is dropped)
 
 
 @dataclass
@@ -160,6 +167,10 @@ class Worker(threading.Thread):
         # vehicle/sensor -> causes already logged for it (once per sensor and cause while
         # the sensor is held; forgotten at eviction, cleared whole past _WARNED_CAP).
         self._warned: dict[str, set[Cause]] = {}
+        # vehicle/sensor -> its clock against the service's (plausibility.LeastLag), from
+        # its frames as they arrive; forgotten 20 s after its last frame. Read at scrapes.
+        self._clocks: dict[str, LeastLag] = {}
+        ctx.metrics.watch_clocks(self.clock_lags)
         self._next_snapshot = time.monotonic() + s.snapshot_interval_s
         self._next_checkpoint = time.monotonic() + s.checkpoint_interval_s
         self._next_housekeeping = time.monotonic() + HOUSEKEEPING_S
@@ -257,6 +268,9 @@ class Worker(threading.Thread):
             self.outbox.forget(s.vehicle, s.sensor)
             self._warned.pop(f"{s.vehicle}/{s.sensor}", None)
             self.custody.machine.gone(f"{s.vehicle}/{s.sensor}")
+        now_ns = time.time_ns()
+        for key in [k for k, c in self._clocks.items() if not c.fresh(now_ns)]:
+            del self._clocks[key]
         self.custody.housekeeping()
         self.outbox.flush_logs()
         # A standby without any state of a sensor gets it now, not at the next interval.
@@ -553,7 +567,7 @@ class Worker(threading.Thread):
         now_ns = time.time_ns()
         t3 = time.perf_counter()
         m.stages["publish"].observe(t3 - t2)
-        m.end_to_end.observe(max(0.0, (now_ns - stamp_ns) * 1e-9))
+        m.observe_end_to_end(stamp_ns, item.received_ns, now_ns, vehicle)
         m.service_latency.observe((now_ns - item.received_ns) * 1e-9)
         m.count_tracked(vehicle)
         m.active_tracks.inc(state.tracked(arrival, len(wire)))
@@ -573,8 +587,15 @@ class Worker(threading.Thread):
     ) -> bool:
         """Count (and log once per sensor and cause) what looks like a unit or convention
         mistake; the frame is tracked all the same. False for the member before this one
-        counted and logged it (a replay at a takeover). True when something was found."""
+        counted and logged it (a replay at a takeover). True when something was found. The
+        sensor's clock estimate learns from every frame that comes here."""
         frame = decoded.frame
+        key = f"{vehicle}/{sensor}"
+        clock = self._clocks.get(key)
+        if clock is None:
+            if len(self._clocks) >= _CLOCKS_CAP:
+                del self._clocks[next(iter(self._clocks))]
+            clock = self._clocks[key] = LeastLag()
         found = check_frame(
             decoded.boxes,
             frame.stamp_ns,
@@ -583,10 +604,17 @@ class Worker(threading.Thread):
             codes=decoded.codes,
             thresholds=self.ctx.start_thresholds,
             key_frame=frame.key_frame,
+            least_lag_ns=clock.see(frame.stamp_ns, item.received_ns),
         )
         if found:
             self._warn(vehicle, sensor, seq, found)
         return bool(found)
+
+    def clock_lags(self) -> list[tuple[str, int]]:
+        """From any thread (a scrape): (``vehicle/sensor``, its least receipt - stamp lately
+        in ns) of each sensor heard in the last 20 s (plausibility.LeastLag)."""
+        now = time.time_ns()
+        return [(k, c.least) for k, c in list(self._clocks.items()) if c.fresh(now)]
 
     def _warn(self, vehicle: str, sensor: str, seq: int, found: list[Finding]) -> None:
         key = f"{vehicle}/{sensor}"
