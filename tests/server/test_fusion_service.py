@@ -346,7 +346,10 @@ def test_a_killed_camera_costs_the_window_then_nothing_and_is_reported_silent(
     waited = [(f.published_ns - f.received_ns) * 1e-9 for f in after]
     dying = [w for f, w in zip(after, waited, strict=True) if f.stamp_ns < death + 0.9e9]
     dead = [w for f, w in zip(after, waited, strict=True) if f.stamp_ns > death + 1.2e9]
-    assert max(dying) <= window + 0.03, dying  # waited for the camera at most the window
+    # Waited for the camera at most the window: the worker wakes at the window's end, and on a
+    # loaded machine (2 cores, a flood test beside it) it has been seen to run 90 ms late;
+    # waiting for the silence instead (silent_after_s) would show as 1 s.
+    assert max(dying) <= window + 0.15, dying
     assert np.median(dead) < 0.05, dead  # then not at all: silent
     assert after[-1].sensor_state[1] is SensorCondition.SILENT
     vehicle = next(v for v in status.vehicles if v.vehicle == VEHICLE)
