@@ -177,6 +177,17 @@ def test_g2_alone_nothing_to_ask() -> None:
     assert m.frame(S, f(1), view(members=(ME,)), 0.0) == [Resolve(S)]
 
 
+def test_g2_a_live_frame_stamped_before_one_that_waited_is_tracked_not_skipped() -> None:
+    # A fresh sensor's first frame waits for the takeover; the next one, stamped before it
+    # (a replayed seq, a clock stepped back), came live too: the ordering rules answer it
+    # (bench fuzz, seed 0: it was skipped, and never answered). Only what a cache or a
+    # standby replayed can still be on its way, and only that is skipped.
+    m = machine()
+    assert m.frame(S, f(5), view(members=(ME,)), 0.0) == [Resolve(S)]
+    assert tracked(take(m, [], None)) == [(5, True)]
+    assert tracked(m.frame(S, (KEY, 1, 0), view(members=(ME,)), 0.0)) == [(1, True)]
+
+
 # ---------------------------------------------------------------------- G3
 def test_g3_handoff_beats_checkpoint_and_own_snapshot() -> None:
     m = machine()

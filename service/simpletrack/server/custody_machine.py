@@ -677,9 +677,13 @@ class CustodyMachine(Generic[F]):
                 if s.phase is Phase.CATCHING_UP
                 else Track(stream, f)
             )
-        top = max((st for _, st in seen), default=None)
+        # A frame both replayed (a vehicle's cache, a standby's) and still on its way live is
+        # in the state now: skip it then. Not so a frame that waited: it came live and never
+        # comes again, and a later one stamped before it is for the ordering rules to answer
+        # (skipped, a fresh sensor's frame stamped before its refused first frame went
+        # unanswered: bench fuzz, seed 0).
+        top = max((st for st in map(self._stamp, t.replay) if st is not None), default=None)
         if top is not None and s.phase is Phase.CATCHING_UP:
-            # A frame both cached and still on its way is in the state now: skip it then.
             covered, published = s.limits
             s.limits = (top if covered is None else max(covered, top), published)
         elif top is not None:
@@ -725,6 +729,9 @@ class CustodyMachine(Generic[F]):
             return True
         stamp = self.peek(frame)[2]
         return stamp is None or stamp > stamp_ns
+
+    def _stamp(self, frame: F) -> int | None:
+        return self.peek(frame)[2]
 
     def _id(self, frame: F) -> tuple[str, int | None]:
         key, _, stamp = self.peek(frame)
