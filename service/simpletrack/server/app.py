@@ -28,8 +28,10 @@ from zenoh import ext
 from simpletrack.core import jit, solvers
 from simpletrack.core.tracker import Tracker
 from simpletrack.core.vehicle import Condition
+from simpletrack.server.announcer import Announcer
 from simpletrack.server.custody import Shared
 from simpletrack.server.custody_machine import Heard
+from simpletrack.server.gil import Trackers
 from simpletrack.server.group import Membership, Role, undeclare
 from simpletrack.server.intake import (
     BurstBudget,
@@ -43,7 +45,7 @@ from simpletrack.server.intake import (
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
 from simpletrack.server.misses import MissCounter
-from simpletrack.server.outbox import MSGPACK, dropped, frame_error, put
+from simpletrack.server.outbox import MSGPACK, congestion_control, dropped, frame_error, put
 from simpletrack.server.plausibility import StartThresholds
 from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, Subscribe, config_digest
@@ -84,12 +86,17 @@ class Service:
         self.metrics = Metrics(settings.metrics_vehicle_label, settings.metrics_max_vehicles)
         self.stop_requested = threading.Event()
         self.started_ns = time.time_ns()
+        # Read once: the package's metadata is a file (0.8 ms a read, each status query's
+        # largest cost under a query flood).
+        self.version = package_version("simpletrack-service")
         self._ready = False
         # Why /readyz answers 503 while starting: the start-up step under way.
         self._phase = "starting"
         self._http: HttpEndpoint | None = None
         self._session: zenoh.Session | None = None
         self._writer: SnapshotWriter | None = None
+        self._announcer: Announcer | None = None
+        self._trackers = Trackers(settings.workers)  # which workers track a frame now
         self._workers: list[Worker] = []
         self._queues: list[WorkQueue] = []
         self._declared: list[Any] = []  # subscriber, queryables, token: undeclared in order
@@ -170,6 +177,10 @@ class Service:
         # (docs/SERVICE.md, "Recovered frames are kept").
         self.burst = BurstBudget(s.burst_bytes)
         self.metrics.watch_burst(self.burst)
+        # The workers' refusal notices, published from a thread of their own: a slow
+        # subscriber of an errors key never holds a worker (server/announcer.py).
+        self._announcer = Announcer(session, congestion_control(s.congestion_control), self.metrics)
+        self._announcer.start()
         ctx = Context(
             settings=s,
             session=session,
@@ -182,6 +193,8 @@ class Service:
             budget=SensorBudget(s.max_sensors),
             writer=self._writer,
             shared=shared,
+            announcer=self._announcer,
+            trackers=self._trackers,
             limits=DecodeLimits(max_bytes=s.max_frame_bytes, max_boxes=s.max_boxes),
             start_thresholds=StartThresholds.of(self.config),
             streams=self.streams,
@@ -216,6 +229,7 @@ class Service:
             self._on_dropped,
             wanted=self._wanted if s.group else None,
             route=self.streams.route,
+            trackers=self._trackers,
         )
         # A fused vehicle's stream keys end in the verbatim chunk @vehicle, which ``*``
         # does not match: each group key is declared for it too.
@@ -282,7 +296,7 @@ class Service:
         log.info(
             "service_started",
             instance=s.instance,
-            version=package_version("simpletrack-service"),
+            version=self.version,
             prefix=s.prefix,
             mode=s.zenoh.mode.value,
             listen=",".join(s.zenoh.listen),
@@ -606,7 +620,7 @@ class Service:
         return ServiceStatus(
             schema_version=STATUS_SCHEMA_VERSION,
             instance=self.settings.instance,
-            version=package_version("simpletrack-service"),
+            version=self.version,
             preset=self.settings.preset,
             classes=list(self.config.class_names),
             config_digest=config_digest(self.config),
@@ -624,6 +638,7 @@ class Service:
         params = query.parameters
         vehicle, sensor = params.get("vehicle"), params.get("sensor")
         only = (vehicle, sensor) if vehicle is not None and sensor is not None else None
+        self._trackers.pause()  # a query flood: the frames being tracked go first
         try:
             query.reply(
                 self.keys.status(self.settings.instance),
@@ -682,6 +697,7 @@ class Service:
         for w in targets:
             if not w.queue.put_control(lambda w=w: answer(w)):  # type: ignore[misc]
                 done(refused=w.index)
+                self._trackers.pause()  # a query flood: the frames being tracked go first
 
     # ------------------------------------------------------------------ stop
     def request_stop(self, signum: int | None = None, _frame: FrameType | None = None) -> None:
@@ -711,6 +727,8 @@ class Service:
                 log.error("worker_stuck", worker=w.index)
             else:  # it publishes no more: its unused reserved ids can go back
                 w.sensors.release_ids()
+        if self._announcer is not None:  # the workers' last notices, then no more
+            self._announcer.close(max(1.0, deadline - time.monotonic()))
         if self._token is not None:
             undeclare(self._token)
             self._token = None

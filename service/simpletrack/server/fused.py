@@ -44,29 +44,28 @@ class FusedFrames:
         key = f"{vehicle}/{VEHICLE_STREAM}"
         got = w.sensors.get(key)
         state = got if isinstance(got, VehicleState) else None
-        held = state is not None
         decoded = decode_detection_frame(item.payload, ctx.limits, ctx.class_codes)
         m.stages["decode"].observe(time.perf_counter() - t0)
         if isinstance(decoded, Rejection):
-            w._refuse(item, vehicle, sensor, held, decoded)
+            w._refuse(item, vehicle, sensor, decoded)
             return
         frame = decoded.frame
         seq, stamp_ns = frame.seq, frame.stamp_ns
         mismatch = key_mismatch(frame, vehicle, sensor)
         if mismatch is not None:
-            w._refuse(item, vehicle, sensor, held, mismatch)
+            w._refuse(item, vehicle, sensor, mismatch)
             return
         kind = WORLD if decoded.pose is not None else VEHICLE
         transform = decoded.pose if decoded.pose is not None else decoded.extrinsic
         if transform is None or (state is not None and state.frame not in (None, kind)):
-            w._refuse(item, vehicle, sensor, held, _no_transform(state, seq, stamp_ns))
+            w._refuse(item, vehicle, sensor, _no_transform(state, seq, stamp_ns))
             return
         flagged = not w._quiet and w._plausible(vehicle, sensor, seq, decoded, item)
         if state is None:
             added = w.sensors.add(vehicle, VEHICLE_STREAM, seq)
             if not isinstance(added, VehicleState):
                 detail = f"already tracking max_sensors={ctx.budget.limit} streams"
-                w._refuse(item, vehicle, sensor, False, Rejection(
+                w._refuse(item, vehicle, sensor, Rejection(
                     ErrorReason.TOO_MANY_SENSORS, None, detail, seq, stamp_ns))  # fmt: skip
                 return
             state = added
@@ -78,7 +77,7 @@ class FusedFrames:
             return  # in the state taken over already
         verdict = check_order(state.arrivals.get(sensor), arrival, w.rules)
         if verdict.reason is not None:
-            w._refuse(item, vehicle, sensor, True, Rejection(
+            w._refuse(item, vehicle, sensor, Rejection(
                 verdict.reason, verdict.field, verdict.detail, seq, stamp_ns))  # fmt: skip
             return
         state.arrivals[sensor] = arrival
@@ -100,7 +99,8 @@ class FusedFrames:
         wait = self.w.ctx.metrics.fusion_wait
         for waiting in ready:
             wait.observe(now - waiting.item.received_at)
-            self._apply(state, waiting)
+            with self.w.ctx.trackers.tracking(self.w.index):
+                self._apply(state, waiting)
         if ready:  # the sensors' standing, for the next frames' wait and the messages
             for sensor in state.tracker.sensors:
                 state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
@@ -172,7 +172,7 @@ class FusedFrames:
             log.error("tracker_failed", exc=True, vehicle=state.vehicle, sensor=sensor,
                       seq=arrival.seq)  # fmt: skip
             detail = f"tracker: {e}"[:300]
-            w._refuse(item, state.vehicle, sensor, True, Rejection(
+            w._refuse(item, state.vehicle, sensor, Rejection(
                 ErrorReason.INTERNAL_ERROR, None, detail, arrival.seq, arrival.stamp_ns))  # fmt: skip
             return
         if fp.kinds:  # numpy's floating-point errors as events, as for a sensor's step
@@ -184,11 +184,11 @@ class FusedFrames:
         t2 = time.perf_counter()
         m.stages["track"].observe(t2 - t1)
         if result.outcome is Outcome.LATE:
-            w._refuse(item, state.vehicle, sensor, True, Rejection(
+            w._refuse(item, state.vehicle, sensor, Rejection(
                 ErrorReason.LATE, "stamp_ns", result.detail, arrival.seq, arrival.stamp_ns))  # fmt: skip
             return
         if result.outcome is Outcome.FLAGGED:
-            w._refuse(item, state.vehicle, sensor, True, Rejection(
+            w._refuse(item, state.vehicle, sensor, Rejection(
                 ErrorReason.SENSOR_FLAGGED, None, result.detail, arrival.seq, arrival.stamp_ns))  # fmt: skip
             return
         state.dirty = True
@@ -202,7 +202,7 @@ class FusedFrames:
             log.error("non_finite_tracks", vehicle=state.vehicle, sensor=sensor,
                       seq=arrival.seq, field=refusal.field)  # fmt: skip
             self._reset(state, "non_finite")
-            w._refuse(item, state.vehicle, sensor, True, refusal)
+            w._refuse(item, state.vehicle, sensor, refusal)
             return
         w.sensors.reserve_ids(state)
         quiet = waiting.replayed and (

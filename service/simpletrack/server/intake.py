@@ -29,6 +29,7 @@ from enum import Enum
 
 import zenoh
 
+from simpletrack.server.gil import Trackers
 from simpletrack.server.settings import Backpressure
 from simpletrack.wire.header import peek_header
 from simpletrack.wire.messages import MAX_NOTICE_SEQS
@@ -437,9 +438,13 @@ class Intake:
         on_dropped: Callable[[Inbound, ErrorReason], None],
         wanted: Callable[[str], bool] | None = None,
         route: Callable[[str], str] | None = None,
+        trackers: Trackers | None = None,
     ) -> None:
-        """``route(key)``: what picks a key's worker (a fused sensor's: its vehicle's)."""
+        """``route(key)``: what picks a key's worker (a fused sensor's: its vehicle's).
+        ``trackers``: the workers tracking now, whom a sample shedding its own lane lets
+        have the interpreter lock first (server/gil.py)."""
         self._queues = queues
+        self._trackers = trackers
         self._route = route or (lambda key: key)
         self._block = policy is Backpressure.BLOCK
         self._on_received = on_received
@@ -483,6 +488,8 @@ class Intake:
             self._on_dropped(item, ErrorReason.MISSED)
         elif evicted is not None:
             self._on_dropped(evicted, ErrorReason.DROPPED_QUEUE_FULL)
+            if evicted.key == item.key and self._trackers is not None:
+                self._trackers.pause()  # a flood: the frames being tracked go first
         if not accepted and evicted is None:
             self._on_dropped(item, ErrorReason.DROPPED_SHUTDOWN)
 

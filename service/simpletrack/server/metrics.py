@@ -106,6 +106,18 @@ class Metrics:
             ("reason", *v),
             registry=r,
         )
+        self.error_notices_dropped = Counter(
+            "simpletrack_error_notices_dropped",
+            "Refusal notices never published on an errors key: past the announcer's backlog "
+            "(a slow errors subscriber) or still waiting at the stop; their frames are counted "
+            "as rejected or dropped all the same",
+            registry=r,
+        )
+        self.error_notices_waiting = Gauge(
+            "simpletrack_error_notices_waiting",
+            "Refusal notices (and tracks held behind them) waiting for the announcer to publish them",
+            registry=r,
+        )
         self.stage = Histogram(
             "simpletrack_stage_seconds",
             "Time per frame in each stage: queue wait, decode, track, publish",

@@ -1,5 +1,8 @@
 """What the service puts on a sensor's keys: its track frames and its ``FrameError`` notices.
-The one builder of a ``FrameError`` lives here, for the workers and for the shutdown path."""
+The one builder of a ``FrameError`` lives here, for the workers and for the shutdown path: the
+light message of ``simpletrack.wire`` (no pydantic on a worker's refusal path), encoded by
+``simpletrack.wire.codec.encode`` to the bytes the pydantic model always gave. The notices
+are published by the member's announcer thread (server/announcer.py), never by a worker."""
 
 from __future__ import annotations
 
@@ -7,7 +10,7 @@ import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -17,8 +20,11 @@ from simpletrack.wire.codec import Rejection
 from simpletrack.wire.codec import encode as encode_message
 from simpletrack.wire.header import peek_header
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
-from simpletrack.wire.models import FrameError
+from simpletrack.wire.messages import FrameError
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
+
+if TYPE_CHECKING:  # the announcer imports this module's constants
+    from simpletrack.server.announcer import Announcer
 
 # The frame lines have always come from this logger (docs/SERVICE.md shows simpletrack.pool).
 log = get_logger("pool")
@@ -102,8 +108,9 @@ def put(
 
 
 class Outbox:
-    """One worker's publishers, declared on a sensor's first frame and kept until the sensor
-    is forgotten. Only the worker's own thread uses it."""
+    """One worker's tracks publishers, declared on a sensor's first frame and kept until the
+    sensor is forgotten, and its notices, handed to the member's announcer. Only the worker's
+    own thread uses it."""
 
     def __init__(
         self,
@@ -111,6 +118,7 @@ class Outbox:
         keys: Keys,
         congestion: zenoh.CongestionControl,
         instance: str,
+        announcer: Announcer,
     ) -> None:
         self.session, self.keys, self.congestion, self.instance = (
             session,
@@ -118,10 +126,10 @@ class Outbox:
             congestion,
             instance,
         )
+        self.announcer = announcer
         self._tracks: dict[tuple[str, str], zenoh.Publisher] = {}
         # (vehicle, stream) -> its last tracks message: a fence stashes it with the state
         self.last: dict[tuple[str, str], bytes] = {}
-        self._errors: dict[tuple[str, str], zenoh.Publisher] = {}
         self._refusals = RepeatLog()
 
     def _publisher(
@@ -135,8 +143,11 @@ class Outbox:
         return pub
 
     def tracks(self, vehicle: str, sensor: str, payload: bytes) -> None:
+        """A sensor's tracks; behind its notices still waiting in the announcer, if any (a
+        subscriber hears of the sensor's frames in the order they were answered)."""
         key = self.keys.tracks(vehicle, sensor)
-        self._publisher(self._tracks, key, (vehicle, sensor)).put(payload)
+        if not self.announcer.behind(key, payload, (vehicle, sensor)):
+            self._publisher(self._tracks, key, (vehicle, sensor)).put(payload)
         self.last[(vehicle, sensor)] = payload
 
     def vehicle_tracks(self, vehicle: str, payload: bytes) -> None:
@@ -152,12 +163,10 @@ class Outbox:
         else:
             self.tracks(vehicle, sensor, payload)
 
-    def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int, held: bool) -> None:
-        """Publish and log a refusal (the log at most once per REFUSAL_LOG_S per sensor and
-        reason after the first). ``held``: the sensor is one the worker holds (it gets a
-        declared publisher); a sensor that never got in is told by a one-off put."""
-        err = frame_error(vehicle, sensor, r, self.instance, received_ns)
-        self._publish(err, held)
+    def refuse(self, vehicle: str, sensor: str, r: Rejection, received_ns: int) -> None:
+        """Announce and log a refusal (the log at most once per REFUSAL_LOG_S per sensor and
+        reason after the first). ValueError for a notice that cannot be encoded."""
+        self._publish(frame_error(vehicle, sensor, r, self.instance, received_ns))
         fields: dict[str, Any] = {
             "vehicle": vehicle,
             "sensor": sensor,
@@ -175,9 +184,11 @@ class Outbox:
 
     def flush_logs(self) -> None:
         """Log the latest refusal of each sensor and reason whose interval has passed with
-        refusals not logged (a flood that stopped still gets its count into the log)."""
+        refusals not logged (a flood that stopped still gets its count into the log), and
+        the announcer's notices dropped since its last line."""
         for fields, repeated in self._refusals.due():
             log.warning("frame_rejected", **fields, repeated=repeated)
+        self.announcer.flush_logs()
 
     def drops(
         self,
@@ -187,11 +198,10 @@ class Outbox:
         seqs: list[int | None],
         stamp_ns: int | None,
         received_ns: int,
-        held: bool,
     ) -> None:
-        """Publish and log one notice naming every frame in ``seqs`` (shed under load)."""
+        """Announce and log one notice naming every frame in ``seqs`` (shed under load)."""
         r = drop_notice(reason, seqs, stamp_ns)
-        self._publish(frame_error(vehicle, sensor, r, self.instance, received_ns, seqs), held)
+        self._publish(frame_error(vehicle, sensor, r, self.instance, received_ns, seqs))
         log.warning(
             "frame_dropped",
             vehicle=vehicle,
@@ -204,35 +214,27 @@ class Outbox:
         )
 
     def notice(self, err: FrameError) -> None:
-        """Publish a notice built elsewhere (frames missed at a takeover)."""
-        self._publish(err, held=True)
+        """Announce a notice built elsewhere (frames missed at a takeover)."""
+        self._publish(err)
 
-    def _publish(self, err: FrameError, held: bool) -> None:
+    def _publish(self, err: FrameError) -> None:
+        """Encode here (ValueError for a notice the decoders would refuse); the announcer
+        publishes it (counted and logged there should its backlog be full)."""
         vehicle, sensor = err.vehicle, err.sensor
         payload = encode_message(err)
-        key = self.keys.errors(vehicle, sensor)
-        try:
-            if held:
-                self._publisher(self._errors, key, (vehicle, sensor)).put(payload)
-            else:
-                put(self.session, key, payload, self.congestion)
-        except zenoh.ZError as e:
-            log.error(
-                "error_publish_failed", vehicle=vehicle, sensor=sensor, seq=err.seq, error=str(e)
-            )
+        self.announcer.announce(self.keys.errors(vehicle, sensor), payload, (vehicle, sensor))
 
     def forget(self, vehicle: str, sensor: str) -> None:
-        """Undeclare a sensor's publishers (evicted, or the worker is stopping)."""
+        """Undeclare a sensor's publisher (evicted, or the worker is stopping)."""
         self.last.pop((vehicle, sensor), None)
         self._refusals.forget((vehicle, sensor))
-        for table in (self._tracks, self._errors):
-            pub = table.pop((vehicle, sensor), None)
-            if pub is not None:
-                with contextlib.suppress(zenoh.ZError):  # session already closed
-                    pub.undeclare()  # type: ignore[no-untyped-call]
+        pub = self._tracks.pop((vehicle, sensor), None)
+        if pub is not None:
+            with contextlib.suppress(zenoh.ZError):  # session already closed
+                pub.undeclare()  # type: ignore[no-untyped-call]
 
     def close(self) -> None:
-        for name in list(self._tracks.keys() | self._errors.keys()):
+        for name in list(self._tracks):
             self.forget(*name)
 
 

@@ -17,6 +17,7 @@ import zenoh
 from simpletrack.core.config import TrackerConfig
 from simpletrack.core.fusion_config import FusionConfig
 from simpletrack.core.tracker import Tracker
+from simpletrack.server.announcer import Announcer
 from simpletrack.server.custody import Custody, Shared
 from simpletrack.server.custody_machine import (
     Action,
@@ -37,6 +38,7 @@ from simpletrack.server.custody_machine import (
 )
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.fused import FusedFrames
+from simpletrack.server.gil import Trackers
 from simpletrack.server.intake import BurstBudget, Dropped, Inbound, Kind, WorkQueue
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
@@ -104,6 +106,8 @@ class Context:
     budget: SensorBudget
     writer: SnapshotWriter | None
     shared: Shared
+    announcer: Announcer  # publishes the workers' refusal notices (server/announcer.py)
+    trackers: Trackers  # which workers track a frame now (server/gil.py)
     limits: DecodeLimits = field(default_factory=DecodeLimits)
     start_thresholds: StartThresholds | None = None  # None: no check of scores against them
     streams: Streams | None = None  # None: no sensor is fused
@@ -148,7 +152,7 @@ class Worker(threading.Thread):
             vehicle_digest=ctx.vehicle_digest,
         )
         self.fused = FusedFrames(self)
-        self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance)
+        self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance, ctx.announcer)
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
         limits = Limits(s.standby_frames, s.fence_after_s, s.fence_hold_s)
         self.custody = Custody(ctx.shared, self.sensors, self.outbox, limits, ctx.burst)
@@ -429,13 +433,13 @@ class Worker(threading.Thread):
         t1 = time.perf_counter()
         m.stages["decode"].observe(t1 - t0)
         if isinstance(decoded, Rejection):
-            self._refuse(item, vehicle, sensor, state is not None, decoded)
+            self._refuse(item, vehicle, sensor, decoded)
             return
         frame = decoded.frame
         seq, stamp_ns = frame.seq, frame.stamp_ns
         mismatch = key_mismatch(frame, vehicle, sensor)
         if mismatch is not None:
-            self._refuse(item, vehicle, sensor, state is not None, mismatch)
+            self._refuse(item, vehicle, sensor, mismatch)
             return
         # Before the ordering rules: a stamp in seconds explains the refusals that follow.
         flagged = not self._quiet and self._plausible(vehicle, sensor, seq, decoded, item)
@@ -450,10 +454,11 @@ class Worker(threading.Thread):
                     f"worker's silent for over reset_gap_s"
                 )
                 r = Rejection(ErrorReason.TOO_MANY_SENSORS, None, detail, seq, stamp_ns)
-                self._refuse(item, vehicle, sensor, False, r)
+                self._refuse(item, vehicle, sensor, r)
                 return
             state = added
-        self._step_sensor(item, decoded, state, arrival, flagged, fresh, (t0, t1))
+        with ctx.trackers.tracking(self.index):
+            self._step_sensor(item, decoded, state, arrival, flagged, fresh, (t0, t1))
 
     def _per_sensor(
         self,
@@ -475,7 +480,8 @@ class Worker(threading.Thread):
             )
         state.epoch = vehicle_state.epoch  # its messages are the vehicle stream's custody's
         now = time.perf_counter()
-        self._step_sensor(item, decoded, state, arrival, False, fresh, (now, now))
+        with self.ctx.trackers.tracking(self.index):
+            self._step_sensor(item, decoded, state, arrival, False, fresh, (now, now))
 
     def _step_sensor(
         self,
@@ -503,7 +509,7 @@ class Worker(threading.Thread):
                 verdict = check_order(state.last, arrival, self.rules)
             if verdict.reason is not None:
                 r = Rejection(verdict.reason, verdict.field, verdict.detail, seq, stamp_ns)
-                self._refuse(item, vehicle, sensor, True, r)
+                self._refuse(item, vehicle, sensor, r)
                 return
             state.keep_undo()
             if verdict.order.resets:
@@ -536,7 +542,7 @@ class Worker(threading.Thread):
             state.before = None  # what keep_undo holds is no longer the state before the last
             detail = f"tracker: {e}"[:300]
             r = Rejection(ErrorReason.INTERNAL_ERROR, None, detail, seq, stamp_ns)
-            self._refuse(item, vehicle, sensor, True, r)
+            self._refuse(item, vehicle, sensor, r)
             return
         t2 = time.perf_counter()
         m.stages["track"].observe(t2 - t1)
@@ -681,7 +687,7 @@ class Worker(threading.Thread):
             field=r.field,
             id_base=s.id_base,
         )
-        self._refuse(item, s.vehicle, s.sensor, True, r)
+        self._refuse(item, s.vehicle, s.sensor, r)
         return False
 
     def _reset(self, s: SensorState, verdict: Verdict, seq: int, stamp_ns: int) -> None:
@@ -707,18 +713,18 @@ class Worker(threading.Thread):
         item: Inbound,
         vehicle: str,
         sensor: str,
-        held: bool,
         r: Rejection,
         counted: bool = False,
     ) -> None:
-        """Count, publish and log a refusal; ``held``: whether the frame's stream is held here
-        (it then has a declared errors publisher)."""
+        """Count, announce and log a refusal (the announcer publishes it)."""
         if self._quiet:
             return  # the member before this one announced it
         if not counted:
             self.ctx.metrics.count_error(r.reason, vehicle)
+        # A flood's refusals come by the thousand: another worker's frame goes first.
+        self.ctx.trackers.pause(own=self.index)
         try:
-            self.outbox.refuse(vehicle, sensor, r, item.received_ns, held=held)
+            self.outbox.refuse(vehicle, sensor, r, item.received_ns)
         except ValueError as e:  # a notice that cannot be built: counted above, never a crash
             log.warning(
                 "frame_rejected", key=item.key, reason=r.reason.value, unpublished=str(e)[:200]
@@ -728,8 +734,7 @@ class Worker(threading.Thread):
         """One notice for frames the queue gave up (counted when they were given up)."""
         vehicle, sensor = self.ctx.keys.sensor_of(d.key) or ("", "")
         if NAME_RE.match(vehicle) and NAME_RE.match(sensor):
-            held = self.sensors.get(self.ctx.stream(vehicle, sensor)) is not None
-            self.outbox.drops(vehicle, sensor, d.reason, d.seqs, d.stamp_ns, d.received_ns, held)
+            self.outbox.drops(vehicle, sensor, d.reason, d.seqs, d.stamp_ns, d.received_ns)
 
     def _drop(self, item: Inbound, reason: ErrorReason, counted: bool = False) -> None:
         """Report a frame shed under load (its header is read, nothing else)."""
@@ -738,5 +743,4 @@ class Worker(threading.Thread):
             if not counted:
                 self.ctx.metrics.count_error(reason, "")
             return
-        held = self.sensors.get(self.ctx.stream(vehicle, sensor)) is not None
-        self._refuse(item, vehicle, sensor, held, dropped(reason, item.payload), counted)
+        self._refuse(item, vehicle, sensor, dropped(reason, item.payload), counted)
