@@ -32,7 +32,7 @@ import zenoh
 
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
-from simpletrack.server.outbox import MSGPACK, REFUSAL_LOG_S
+from simpletrack.server.outbox import REFUSAL_LOG_S, put
 
 log = get_logger("pool")
 # Bytes of notices (and of tracks held behind them) that may wait: ~80,000 refusals of garbage
@@ -158,9 +158,7 @@ class Announcer:
                         break
                     self._next = i
                 try:
-                    self._session.put(
-                        key, payload, encoding=MSGPACK, congestion_control=self._congestion
-                    )
+                    put(self._session, key, payload, self._congestion)
                 except zenoh.ZError as e:
                     log.error("error_publish_failed", key=key, error=str(e))
             with self._cond:
