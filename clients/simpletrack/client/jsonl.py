@@ -19,9 +19,8 @@ from typing import IO, Any
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.wire import TrackArrays, TrackFrame, WireTrackState
-
-STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
+from simpletrack.wire import TrackArrays, TrackFrame
+from simpletrack.wire.reasons import STATE_NAMES
 
 
 def rounded(a: npt.NDArray[Any], digits: int = 4) -> list[Any]:

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.mcap.scene import STATE_NAMES, _columns, _sensors
+from simpletrack.mcap.scene import _columns, _sensors
 from simpletrack.wire.columns import (
     DETECTION_SPECS,
     TRACK_COLUMNS_OF,
@@ -45,6 +45,7 @@ from simpletrack.wire.columns import (
     VEHICLE_TRACK_SPECS,
     ColumnSpec,
 )
+from simpletrack.wire.reasons import STATE_NAMES
 
 # The wire model of each message with a box table, and the table's field name.
 TABLES = {"DetectionFrame": "boxes", "TrackFrame": "tracks", "VehicleTrackFrame": "tracks"}

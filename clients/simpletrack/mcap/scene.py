@@ -34,6 +34,7 @@ from simpletrack.wire.columns import (
     view_column,
 )
 from simpletrack.wire.keys import DETECTIONS, VEHICLE_STREAM
+from simpletrack.wire.reasons import STATE_NAMES
 from simpletrack.wire.track_ids import global_id
 
 # The service's default world frame (world_frame_id), until a track frame names the real one.
@@ -46,7 +47,6 @@ STATE_COLORS = {
     1: (0.180, 0.627, 0.263),
     2: (0.231, 0.365, 0.561),
 }
-STATE_NAMES = {0: "tentative", 1: "confirmed", 2: "coasting"}
 DETECTION_COLOR = (0.85, 0.85, 0.85)
 UNKNOWN_COLOR = (0.8, 0.2, 0.8)
 ALPHA = 0.5

@@ -28,14 +28,14 @@ from simpletrack.view.vehicle import (
     skipped_because,
     vehicle_pose,
 )
-from simpletrack.wire import Rejection, WireTrackState, decode_detection_frame
+from simpletrack.wire import Rejection, decode_detection_frame
 from simpletrack.wire.codec import DecodedDetections
 from simpletrack.wire.keys import VEHICLE_STREAM
+from simpletrack.wire.reasons import STATE_NAMES
 
 RATE_WINDOW_S = 3.0  # frames/s over the arrivals of the last few seconds
 RECENT_FRAMES = 50  # latency and tracks-per-frame figures over this many frames
 MAX_SENSORS = 10_000  # a flood of sensor names must not grow memory without end
-STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
 
 
 @dataclass(frozen=True, slots=True)

@@ -82,3 +82,7 @@ class WireTrackState(IntEnum):
     TENTATIVE = 0  # fewer than min_hits hits so far
     CONFIRMED = 1  # confirmed and updated on this frame
     COASTING = 2  # confirmed, but not updated on this frame (time_since_update > 0)
+
+
+# Each state code's name as text (JSON lines, the view, Foxglove's rows): "tentative", ...
+STATE_NAMES: dict[int, str] = {int(s): s.name.lower() for s in WireTrackState}

@@ -15,9 +15,7 @@ from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.tracker import Tracker
 from simpletrack.datasets.nuscenes import read_scene
 from simpletrack.wire.convert import wire_states
-from simpletrack.wire.reasons import WireTrackState
-
-STATE_NAMES = {int(s): s.name.lower() for s in WireTrackState}
+from simpletrack.wire.reasons import STATE_NAMES
 
 
 def track_scene(
