@@ -98,24 +98,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = _command(argv)
     try:
         # Without a known command (--help, --version, a typo) no command module is imported.
-        parser = build_parser(only=command or "")
-    except ModuleNotFoundError as exc:
+        args = build_parser(only=command or "").parse_args(argv)
+        return int(args.func(args))
+    except UserError as exc:
+        print(f"simpletrack {command}: error: {exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:  # the command's, or an option's imported when used
         hint = extra_hint(exc.name)
         if hint is None:
             raise
         print(f"simpletrack {command}: {hint}", file=sys.stderr)
-        return 2
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args))
-    except UserError as exc:
-        print(f"simpletrack {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except ModuleNotFoundError as exc:  # an option's dependency, imported when it is used
-        hint = extra_hint(exc.name)
-        if hint is None:
-            raise
-        print(f"simpletrack {args.command}: {hint}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
