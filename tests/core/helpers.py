@@ -23,11 +23,29 @@ def frame(rows: Sequence[Sequence[float]], stamp: float, key_frame: bool = True)
     return Frame(boxes=boxes, stamp=stamp, key_frame=key_frame)
 
 
+_BASE = {"score_high": 0.5, "score_low": 0.1, "min_hits": 3, "max_age": 2, "nms_iou": 0.25}
+
+
 def config(output: OutputPolicy = OutputPolicy.PAPER, **cls: object) -> TrackerConfig:
-    base = {"score_high": 0.5, "score_low": 0.1, "min_hits": 3, "max_age": 2, "nms_iou": 0.25}
-    base.update(cls)
-    c = ClassConfig.model_validate(base)
+    c = ClassConfig.model_validate({**_BASE, **cls})
     return TrackerConfig(classes={"car": c, "pedestrian": c}, output=output)
+
+
+def models_config(
+    output: OutputPolicy = OutputPolicy.PAPER, pedestrian: str = "bicycle"
+) -> TrackerConfig:
+    """Cars by CTRA with a gated ImmortalTracker life, pedestrians by ``pedestrian`` (cv:
+    constant-velocity rows in a 12-d table) with an ungated one: the motion models, lost
+    tracks and their gate on every path."""
+    car = {"motion_model": "ctra", "max_age": 3, "revive_frames": 6, "revive_gate": 9.0}
+    ped = {"motion_model": pedestrian, "revive_frames": 4}
+    return TrackerConfig(
+        classes={
+            "car": ClassConfig.model_validate({**_BASE, **car}),
+            "pedestrian": ClassConfig.model_validate({**_BASE, **ped}),
+        },
+        output=output,
+    )
 
 
 def crowd(

@@ -22,7 +22,7 @@ from simpletrack.core.config import MotionModel, OutputPolicy, TrackerConfig, Tr
 from simpletrack.core.frames import Frame
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.tracker import Tracker
-from tests.core.helpers import config
+from tests.core.helpers import config, models_config
 from tests.core.helpers import crowd as helpers_crowd
 
 
@@ -42,6 +42,8 @@ def configs() -> list[TrackerConfig]:
         config(OutputPolicy.NUSCENES, max_age=3, coast_output=1).model_copy(
             update={"motion": MotionModel.CONSTANT_VELOCITY}
         ),
+        models_config(),
+        models_config(OutputPolicy.NUSCENES, pedestrian="cv"),
     ]
 
 

@@ -28,7 +28,7 @@ from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import UpdateKind
 from simpletrack.core.step_kernels import InfeasibleBlock
 from simpletrack.core.tracker import Tracker
-from tests.core.helpers import config, crowd
+from tests.core.helpers import config, crowd, models_config
 
 
 def stream(seed: int) -> list[Frame]:
@@ -68,6 +68,8 @@ def configs() -> list[TrackerConfig]:
         config(OutputPolicy.NUSCENES, max_age=3, coast_output=1).model_copy(
             update={"motion": MotionModel.CONSTANT_VELOCITY}
         ),
+        models_config(),
+        models_config(OutputPolicy.NUSCENES, pedestrian="cv"),
     ]
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simpletrack.core.config import preset
+from simpletrack.core.config import TrackerConfig, preset
 from simpletrack.core.frames import Frame
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
 from simpletrack.core.lifecycle import UpdateKind
@@ -25,7 +25,9 @@ from tests.core.fusion_helpers import (
     schedule,
     tracker_config,
 )
-from tests.core.test_step_kernels import _same, configs, stream
+from tests.core.helpers import models_config
+from tests.core.test_step_kernels import _same, stream
+from tests.core.test_step_kernels import configs as all_configs
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 ONE = FusionConfig(sensors={"lidar": SensorTrust()})
@@ -47,6 +49,20 @@ def _one_sensor_agrees(frames: list[Frame], config: object, period_ns: int) -> i
         assert fused.tracks.seq == k
         n += len(plain)
     return n
+
+
+def configs() -> list[TrackerConfig]:
+    """The step kernels' configurations a fused vehicle takes (not the motion models)."""
+    return [
+        c
+        for c in all_configs()
+        if c.state_dim == 10 and not any(k.revive_frames for k in c.classes.values())
+    ]
+
+
+def test_a_fused_vehicle_refuses_motion_models_and_lost_tracks_naming_the_class() -> None:
+    with pytest.raises(ValueError, match="car: motion_model ctra, revive_frames 6"):
+        VehicleTracker(models_config(), ONE)
 
 
 @pytest.mark.parametrize("index", range(len(configs())))

@@ -128,6 +128,27 @@ def test_a_bad_class_overrides_file_fails_load_settings_naming_file_class_and_va
         load_settings(None, {"class_overrides": tmp_path / "missing.toml"})
 
 
+def test_motion_models_and_lost_tracks_load_per_sensor_and_are_refused_for_a_fused_vehicle(
+    tmp_path: Path,
+) -> None:
+    models = tmp_path / "models.toml"
+    models.write_text('[Car]\nmotion_model = "ctra"\nrevive_frames = 20\nrevive_gate = 12.0\n')
+    cfg = load_settings(None, {"class_overrides": models}).tracker_config()
+    assert (cfg.classes["Car"].motion_model, cfg.classes["Car"].revive_frames) == ("ctra", 20)
+    assert cfg.state_dim == 12
+    fused = {"fusion": {"sensors": {"lidar": {}, "camera": {}}}}
+    with pytest.raises(
+        ValueError, match=r"Car: motion_model ctra, revive_frames 20, process_noise None: a fused"
+    ):
+        load_settings(None, {"class_overrides": models, **fused})
+    per_sensor = {
+        "fusion": {"sensors": {"lidar": {}, "camera": {"classes": {"Car": {"revive_frames": 5}}}}}
+    }
+    with pytest.raises(ValueError, match=r"fusion.sensors.camera.classes.Car: motion_model cv"):
+        load_settings(None, per_sensor)
+    assert load_settings(None, fused).tracker_config().state_dim == 10
+
+
 def _fields(model: type[BaseModel]) -> dict[str, object]:
     """Field names, nested models as dicts of their own."""
     out: dict[str, object] = {}

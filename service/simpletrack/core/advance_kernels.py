@@ -9,8 +9,9 @@ returns the tracks after the frame and what the frame reports:
    and velocity replace the prediction's);
 3. matched scores (the detection's, or fused with the decayed one);
 4. on a key frame: hits, ages, the life cycle (min_hits, max_age, delete_below,
-   max_position_std), births of the unmatched detections, and the dead removed;
-5. the output policy, with coast_output.
+   max_position_std; revive_frames keeps a confirmed track lost instead of dead),
+   births of the unmatched detections (each with its class's P0), and the dead removed;
+5. the output policy, with coast_output; a lost track is never reported.
 
 Every step is the same scalar arithmetic, in the same order, as the numpy code it replaced:
 outputs are bit-identical (tests/core/test_advance_kernels.py runs both ways).
@@ -38,13 +39,16 @@ __all__ = [
     "POLICY_NUSCENES",
     "POLICY_PAPER",
     "POLICY_REFERENCE",
+    "REVIVE",
     "SCORE_DECAY",
     "advance",
 ]
 
 # Columns of the per-class option table (Tracker builds it once from its config).
-FUSED, SCORE_DECAY, MIN_HITS, MAX_AGE, DELETE_BELOW, MAX_POSITION_STD, COAST_OUTPUT = range(7)
-N_OPTIONS = 7
+FUSED, SCORE_DECAY, MIN_HITS, MAX_AGE, DELETE_BELOW, MAX_POSITION_STD, COAST_OUTPUT, REVIVE = range(
+    8
+)
+N_OPTIONS = 8
 # Output policies (config.OutputPolicy), as the kernel reads them.
 POLICY_PAPER, POLICY_REFERENCE, POLICY_NUSCENES = range(3)
 
@@ -52,7 +56,6 @@ POLICY_PAPER, POLICY_REFERENCE, POLICY_NUSCENES = range(3)
 _TENTATIVE, _CONFIRMED, _DEAD = 0, 1, 2
 _COASTED, _MATCHED = 0, 1
 _YAW = 3
-_X = 10
 _POS_VEL = (0, 1, 2, 7, 8, 9)  # frames.POS_VEL
 
 F64 = npt.NDArray[np.float64]
@@ -80,7 +83,7 @@ _ADVANCE = (
     " int64[:], int64[:], int64[:], int64[:],"
     " float64[:, :], float64[:], int32[:], float64[:, :],"
     " boolean, boolean, boolean, int64, int64, int64, float64, float64,"
-    " float64[:, :], float64[:, :], float64[:, :])"
+    " float64[:, :], float64[:, :], float64[:, :, :])"
 )
 
 
@@ -131,6 +134,7 @@ def advance(
     age_s, time_since_update_s. ``update`` is this frame's UpdateKind per track; births (key
     frames only) take ids from ``next_id`` on, in ``unmatched_det``'s order."""
     n = ids.shape[0]
+    nx = x.shape[1]  # 10, or 12 with motion models (core/motion_kernels.py)
     n_m = matched_trk.shape[0]
     n_c = n_m + extended.shape[0]
 
@@ -153,14 +157,14 @@ def advance(
         rows[k] = t
         corr[t] = k
         tu[t] = stamp
-    xo = np.empty((n_c, _X))
-    po = np.empty((n_c, _X, _X))
+    xo = np.empty((n_c, nx))
+    po = np.empty((n_c, nx, nx))
     zc = np.empty((n_c, 7))
     for k in range(n_c):
         zc[k] = d_params[matched_det[k]] if k < n_m else pred_box[rows[k]]
     if kalman:
-        xc = np.empty((n_c, _X))
-        pc = np.empty((n_c, _X, _X))
+        xc = np.empty((n_c, nx))
+        pc = np.empty((n_c, nx, nx))
         for k in range(n_c):
             xc[k] = x_pred[rows[k]]
             pc[k] = p_pred[rows[k]]
@@ -201,8 +205,10 @@ def advance(
             promote = st[t] == _TENTATIVE and (hi[t] >= min_hits or frame_count <= min_hits)
             if promote:
                 st[t] = _CONFIRMED
-            elif ts[t] >= options[c, MAX_AGE]:
-                st[t] = _DEAD
+            elif ts[t] >= options[c, MAX_AGE] + (
+                options[c, REVIVE] if st[t] == _CONFIRMED else 0.0
+            ):
+                st[t] = _DEAD  # a confirmed track with revive_frames is lost in between
             if st[t] == _CONFIRMED and s[t] < options[c, DELETE_BELOW]:
                 st[t] = _DEAD
             limit = options[c, MAX_POSITION_STD]
@@ -220,8 +226,8 @@ def advance(
     m = n_alive + n_born
     o_ids = np.empty(m, dtype=np.int64)
     o_cls = np.empty(m, dtype=np.int32)
-    o_x = np.empty((m, _X))
-    o_p = np.empty((m, _X, _X))
+    o_x = np.empty((m, nx))
+    o_p = np.empty((m, nx, nx))
     o_tu = np.empty(m)
     o_s = np.empty(m)
     o_hi = np.empty(m, dtype=np.int32)
@@ -261,7 +267,7 @@ def advance(
         o_x[j] = 0.0
         o_x[j, :7] = d_params[u]
         if kalman:
-            o_p[j] = p0
+            o_p[j] = p0[c]
         else:
             o_p[j] = 0.0
             if has_velocity:
@@ -288,6 +294,9 @@ def advance(
             kp = o_st[j] == _TENTATIVE or (confirmed and matched)
         else:
             kp = confirmed and matched
+        c = o_cls[j]
+        if options[c, REVIVE] > 0.0 and o_ts[j] >= options[c, MAX_AGE]:
+            kp = False  # lost: reported again once re-matched
         window = options[o_cls[j], COAST_OUTPUT]
         coast[j] = confirmed and not matched and window > 0 and o_ts[j] <= window
         keep[j] = kp or coast[j]

@@ -30,6 +30,16 @@ class MotionModel(StrEnum):
     CONSTANT_VELOCITY = "constant_velocity"
 
 
+class MotionKind(StrEnum):
+    """A class's Kalman motion model (docs/MOTION.md). Every model but ``cv`` adds two states
+    after the velocity, ``[x, y, z, yaw, l, w, h, vx, vy, vz, e0, e1]``:"""
+
+    CV = "cv"  # constant velocity: AB3DMOT's filter, the paper's
+    CA = "ca"  # constant acceleration: e0, e1 = ax, ay (m/s^2)
+    CTRA = "ctra"  # constant turn rate and acceleration: e0 = yaw rate (rad/s), e1 = m/s^2
+    BICYCLE = "bicycle"  # constant curvature (steering) and acceleration: e0 = 1/m, e1 = m/s^2
+
+
 class OutputPolicy(StrEnum):
     """Which live tracks a frame reports (spec: Output)."""
 
@@ -58,6 +68,7 @@ class TieOrder(StrEnum):
 
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+Variance = Annotated[float, Field(gt=0.0)]
 
 
 class _Frozen(BaseModel):
@@ -130,6 +141,44 @@ class ClassConfig(_Frozen):
         "covariance)",
     )
 
+    motion_model: MotionKind = Field(
+        MotionKind.CV,
+        description="the Kalman motion model of this class's tracks (docs/MOTION.md): cv "
+        "(the paper's constant velocity), ca (constant acceleration), ctra (constant turn "
+        "rate and acceleration along the velocity), bicycle (constant curvature and "
+        "acceleration: a turn rate proportional to speed). Needs motion kalman",
+    )
+    model_noise: tuple[Variance, Variance] | None = Field(
+        None,
+        description="the process noise added per frame to the model's two extra states "
+        "(e0, e1 in MotionKind's units, squared); none: the model's default "
+        "(docs/MOTION.md). Only with a motion_model other than cv",
+    )
+    process_noise: (
+        tuple[Annotated[float, Field(gt=0.0)], Annotated[float, Field(gt=0.0)]] | None
+    ) = Field(
+        None,
+        description="none: the tracker's kalman.q on every state. (box, velocity): the "
+        "Kalman process noise per frame of this class's tracks on the 7 box states "
+        "(m^2, rad^2) and on the 3 velocity states ((m/s)^2), as a filter that trusts "
+        "its motion more (or less) than AB3DMOT's Q = I (docs/MOTION.md)",
+    )
+    revive_frames: Annotated[int, Field(ge=0, le=1000)] = Field(
+        0,
+        description="0: off. ImmortalTracker's life cycle: a confirmed track that has "
+        "missed max_age frames is kept lost, predicted but never reported, for up to "
+        "revive_frames more key frames; a stage-1 match (under revive_gate) brings it back "
+        "with its id. A lost track takes no stage-2 extension",
+    )
+    revive_gate: float | None = Field(
+        None,
+        description="none: a lost track matches under max_distance as any other. A number "
+        "T: a lost track also needs d^2 + ln det(2 pi S) <= T for the detection's bird's-eye "
+        "centre (d^2 its Mahalanobis distance under the predicted S = P_xy + R_xy): the "
+        "track's likelihood must beat a new object's density exp(-T / 2) per m^2, so the "
+        "longer a track coasts, the nearer a detection must be. Only with revive_frames",
+    )
+
     @property
     def widest_max_distance(self) -> float:
         """The widest stage-1 threshold a track of this class can get: ``gate_widening``
@@ -147,6 +196,10 @@ class ClassConfig(_Frozen):
                 f"coast_output ({self.coast_output}) must be at most max_age - 1 "
                 f"({self.max_age - 1}): a track is dead after max_age missed frames"
             )
+        if self.model_noise is not None and self.motion_model is MotionKind.CV:
+            raise ValueError("model_noise needs a motion_model other than cv")
+        if self.revive_gate is not None and self.revive_frames == 0:
+            raise ValueError(f"revive_gate ({self.revive_gate}) needs revive_frames > 0")
         return self
 
 
@@ -183,7 +236,19 @@ class TrackerConfig(_Frozen):
         for name in self.classes:
             if not name or name != name.strip():
                 raise ValueError(f"class name {name!r} must be non-empty without edge spaces")
+        if self.motion is not MotionModel.KALMAN:
+            for name, c in self.classes.items():
+                if c.motion_model is not MotionKind.CV:
+                    raise ValueError(
+                        f"class {name!r}: motion_model {c.motion_model.value} needs motion "
+                        f"kalman, not {self.motion.value}"
+                    )
         return self
+
+    @property
+    def state_dim(self) -> int:
+        """10 (AB3DMOT's state), or 12 when a class has a motion model with extra states."""
+        return 12 if any(c.motion_model is not MotionKind.CV for c in self.classes.values()) else 10
 
     @property
     def class_names(self) -> tuple[str, ...]:

@@ -49,6 +49,8 @@ _KERNEL_MODULES = (
     "simpletrack.core.overlap_kernels",
     "simpletrack.core.pair_kernels",
     "simpletrack.core.kalman_kernels",
+    "simpletrack.core.motion_kernels",
+    "simpletrack.core.revive_kernels",
     "simpletrack.core.assignment_kernels",
     "simpletrack.core.advance_kernels",
     "simpletrack.core.step_kernels",

@@ -23,7 +23,7 @@ from simpletrack.core.jit import helper, inline, kernel
 
 F64 = npt.NDArray[np.float64]
 
-__all__ = ["predict_all", "update_all", "update_into", "wrap_once"]
+__all__ = ["predict_all", "predict_row", "update_all", "update_into", "wrap_once"]
 
 _YAW = 3
 _Z = 7  # measured dimensions
@@ -71,39 +71,59 @@ def predict_all(x: F64, p: F64, dt: F64, q: F64) -> tuple[F64, F64]:
     p_out = np.empty((n, _X, _X))
     fp = np.empty((_X, _X))
     for t in range(n):
-        d = dt[t]
-        for i in range(_X):
-            x_out[t, i] = x[t, i] + x[t, i + 7] * d if i < 3 else x[t, i]
-        for i in range(_X):
-            for j in range(_X):
-                fp[i, j] = p[t, i, j] + p[t, i + 7, j] * d if i < 3 else p[t, i, j]
-        for i in range(_X):
-            for j in range(_X):
-                v = fp[i, j] + fp[i, j + 7] * d if j < 3 else fp[i, j]
-                p_out[t, i, j] = v + q[i, j]
+        predict_row(x[t], p[t], dt[t], q, x_out[t], p_out[t], fp, _X)
     return x_out, p_out
+
+
+@inline
+def predict_row(x: F64, p: F64, d: float, q: F64, x_out: F64, p_out: F64, fp: F64, nx: int) -> None:
+    """One track's constant-velocity step of ``d`` into ``x_out``, ``p_out`` (``fp``: scratch
+    of P's shape); ``nx`` states, 10 or more (those past 10 keep their values, plus Q).
+    Inlined, so that a literal ``nx`` unrolls the loops (the 10-state path is the hot one:
+    it is as fast as the loops written out)."""
+    for i in range(nx):
+        x_out[i] = x[i] + x[i + 7] * d if i < 3 else x[i]
+    for i in range(nx):
+        for j in range(nx):
+            fp[i, j] = p[i, j] + p[i + 7, j] * d if i < 3 else p[i, j]
+    for i in range(nx):
+        for j in range(nx):
+            v = fp[i, j] + fp[i, j + 7] * d if j < 3 else fp[i, j]
+            p_out[i, j] = v + q[i, j]
 
 
 @kernel(_UPDATE)
 def update_all(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
-    """Predicted (T, 10) means and (T, 10, 10) covariances corrected by (T, 7) measurements;
+    """Predicted (T, X) means and (T, X, X) covariances (X = 10, or 12 with motion models)
+    corrected by (T, 7) measurements;
     yaw aligned before and wrapped after, as the reference does."""
     n = x.shape[0]
-    x_out = np.empty((n, _X))
-    p_out = np.empty((n, _X, _X))
+    nx = x.shape[1]
+    x_out = np.empty((n, nx))
+    p_out = np.empty((n, nx, nx))
     update_into(x, p, z, r, x_out, p_out)
     return x_out, p_out
 
 
 @helper
 def update_into(x: F64, p: F64, z: F64, r: F64, x_out: F64, p_out: F64) -> None:
-    """``update_all`` writing into ``x_out`` and ``p_out`` (callable from other kernels)."""
+    """``update_all`` writing into ``x_out`` and ``p_out`` (callable from other kernels); 10
+    states (a literal width: the hot path, unrolled), or 12 with motion models' extra states
+    (core/motion_kernels.py)."""
+    if x.shape[1] == _X:
+        _update(x, p, z, r, x_out, p_out, _X)
+    else:
+        _update(x, p, z, r, x_out, p_out, x.shape[1])
+
+
+@inline
+def _update(x: F64, p: F64, z: F64, r: F64, x_out: F64, p_out: F64, nx: int) -> None:
     n = x.shape[0]
     y = np.empty(_Z)
     aug = np.empty((_Z, 2 * _Z))  # [S | I] -> [I | S^-1]
-    k = np.empty((_X, _Z))
-    kr = np.empty((_X, _Z))
-    ap = np.empty((_X, _X))
+    k = np.empty((nx, _Z))
+    kr = np.empty((nx, _Z))
+    ap = np.empty((nx, nx))
     for t in range(n):
         yaw = _align_yaw(x[t, _YAW], z[t, _YAW])
         for i in range(_Z):
@@ -131,32 +151,32 @@ def update_into(x: F64, p: F64, z: F64, r: F64, x_out: F64, p_out: F64) -> None:
                 if i != c and f != 0.0:
                     for j in range(2 * _Z):
                         aug[i, j] -= f * aug[c, j]
-        for i in range(_X):  # K = P H^T S^-1
+        for i in range(nx):  # K = P H^T S^-1
             for j in range(_Z):
                 acc = 0.0
                 for m in range(_Z):
                     acc += p[t, i, m] * aug[m, _Z + j]
                 k[i, j] = acc
-        for i in range(_X):
+        for i in range(nx):
             acc = 0.0
             for m in range(_Z):
                 acc += k[i, m] * y[m]
             x_out[t, i] = (yaw if i == _YAW else x[t, i]) + acc
         x_out[t, _YAW] = wrap_once(x_out[t, _YAW])
-        for i in range(_X):
+        for i in range(nx):
             for j in range(_Z):
                 acc = 0.0
                 for m in range(_Z):
                     acc += k[i, m] * r[m, j]
                 kr[i, j] = acc
-            for j in range(_X):
+            for j in range(nx):
                 acc = 0.0
                 for m in range(_Z):
                     acc += k[i, m] * p[t, m, j]
                 ap[i, j] = p[t, i, j] - acc
         # The upper triangle, mirrored: a covariance published must be exactly symmetric.
-        for i in range(_X):
-            for j in range(i, _X):
+        for i in range(nx):
+            for j in range(i, nx):
                 a_kt = 0.0
                 krk = 0.0
                 for m in range(_Z):

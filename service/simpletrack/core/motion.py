@@ -11,12 +11,59 @@ from __future__ import annotations
 import numpy as np
 
 from simpletrack.core.boxes import F64, YAW
-from simpletrack.core.config import KalmanConfig
+from simpletrack.core.config import KalmanConfig, MotionKind, TrackerConfig
 from simpletrack.core.kalman_kernels import predict_all, update_all
+from simpletrack.core.motion_kernels import BICYCLE, CA, CTRA, CV
 
 DIM_X = 10
 DIM_Z = 7
 _VEL = slice(7, 10)
+
+
+# Each model's code in motion_kernels, and its extra states' (e0, e1) initial variance and
+# process noise per frame (squared units of config.MotionKind); docs/MOTION.md says why.
+MODEL_CODES = {
+    MotionKind.CV: CV,
+    MotionKind.CA: CA,
+    MotionKind.CTRA: CTRA,
+    MotionKind.BICYCLE: BICYCLE,
+}
+MODEL_P0: dict[MotionKind, tuple[float, float]] = {
+    MotionKind.CA: (4.0, 4.0),  # 2 m/s^2
+    MotionKind.CTRA: (0.25, 4.0),  # 0.5 rad/s, 2 m/s^2
+    MotionKind.BICYCLE: (0.01, 4.0),  # 0.1 /m (a 10 m radius), 2 m/s^2
+}
+MODEL_Q: dict[MotionKind, tuple[float, float]] = {
+    MotionKind.CA: (0.25, 0.25),  # 0.5 m/s^2 per frame
+    MotionKind.CTRA: (0.01, 0.25),  # 0.1 rad/s, 0.5 m/s^2 per frame
+    MotionKind.BICYCLE: (0.0004, 0.25),  # 0.02 /m, 0.5 m/s^2 per frame
+}
+
+
+def class_noise(config: TrackerConfig) -> tuple[F64, F64]:
+    """Per class code: the births' covariance (n_cls, X, X) and the diagonal process noise
+    (n_cls, X), X = config.state_dim: the Kalman settings (or the class's process_noise)
+    over the 10 AB3DMOT states, the
+    model's over its two extra ones (cv: the first alone; a 12-d table's cv rows keep
+    their extra states untouched but for this noise)."""
+    kal = config.kalman
+    dim = config.state_dim
+    n = len(config.classes)
+    p0 = np.zeros((n, dim, dim))
+    q = np.zeros((n, dim))
+    for code, c in enumerate(config.classes.values()):
+        diag = np.full(dim, kal.p0_measured)
+        diag[_VEL] = kal.p0_velocity
+        q[code] = kal.q
+        if c.process_noise is not None:
+            q[code, :DIM_Z], q[code, DIM_Z:DIM_X] = c.process_noise
+        if dim > DIM_X:
+            extra_p0 = MODEL_P0.get(c.motion_model, (kal.p0_measured, kal.p0_measured))
+            extra_q = c.model_noise or MODEL_Q.get(c.motion_model, (kal.q, kal.q))
+            diag[DIM_X:] = extra_p0
+            q[code, DIM_X:] = extra_q
+        p0[code] = np.diag(diag)
+    return p0, q
 
 
 def _wrap_once(a: F64) -> F64:

@@ -16,8 +16,8 @@ from simpletrack.core.motion import DIM_X
 class TrackTable:
     ids: npt.NDArray[np.int64]
     cls: npt.NDArray[np.int32]
-    x: npt.NDArray[np.float64]  # (T, 10) state at the last filter update
-    p: npt.NDArray[np.float64]  # (T, 10, 10) covariance at the last filter update
+    x: npt.NDArray[np.float64]  # (T, X) state at the last filter update (X: 10 or 12)
+    p: npt.NDArray[np.float64]  # (T, X, X) covariance at the last filter update
     t_update: npt.NDArray[np.float64]  # stamp of the last filter update
     score: npt.NDArray[np.float64]  # latest score (decays while coasting)
     hits: npt.NDArray[np.int32]
@@ -32,12 +32,13 @@ class TrackTable:
     t_birth: npt.NDArray[np.float64]
 
     @classmethod
-    def empty(cls) -> TrackTable:
+    def empty(cls, dim: int = DIM_X) -> TrackTable:
+        """No tracks, with states of ``dim`` (TrackerConfig.state_dim)."""
         return cls(
             ids=np.zeros(0, dtype=np.int64),
             cls=np.zeros(0, dtype=np.int32),
-            x=np.zeros((0, DIM_X)),
-            p=np.zeros((0, DIM_X, DIM_X)),
+            x=np.zeros((0, dim)),
+            p=np.zeros((0, dim, dim)),
             t_update=np.zeros(0),
             score=np.zeros(0),
             hits=np.zeros(0, dtype=np.int32),

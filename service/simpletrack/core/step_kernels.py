@@ -3,8 +3,10 @@
 ``step_frame`` is ``Tracker.step`` after its argument checks for a frame whose every class
 block is dense (core/pairs.py) and measured by the IoU family: the degenerate boxes dropped,
 the NMS walk (``pair_kernels.nms_walk``), then: predict every track
-(``kalman_kernels.predict_all``, or constant velocity), the predicted boxes, the stage-1 and
-stage-2 candidates, the distance table (``pair_kernels.class_table``), stage 1
+(``kalman_kernels.predict_all``; ``motion_kernels.predict_models`` when a class has a motion
+model or its own noise; or constant velocity), the predicted boxes, the stage-1 and stage-2
+candidates, the distance table (``pair_kernels.class_table``) with the lost tracks' gate
+(``revive_kernels``), stage 1
 (``assignment_kernels.stage1_dense``), stage 2, then ``advance_kernels.advance``. It calls the
 same kernels the staged path calls, with the same arguments, and does the glue between them
 (thresholds, index lists, stage 2) with the same comparisons in the same order: its outputs
@@ -29,7 +31,9 @@ from simpletrack.core.assignment_kernels import INFEASIBLE, stage1_dense
 from simpletrack.core.boxes import H, L, W
 from simpletrack.core.jit import helper, kernel
 from simpletrack.core.kalman_kernels import predict_all, wrap_once
+from simpletrack.core.motion_kernels import predict_models
 from simpletrack.core.pair_kernels import class_table, nms_walk
+from simpletrack.core.revive_kernels import gate_dense, lost_tracks
 
 __all__ = [
     "FAR_COST",
@@ -38,6 +42,8 @@ __all__ = [
     "MAX_AGE",
     "MAX_DISTANCE",
     "N_ASSOCIATION",
+    "REVIVE_FRAMES",
+    "REVIVE_GATE",
     "SCORE_HIGH",
     "SCORE_LOW",
     "STAGE2_MAX",
@@ -59,12 +65,13 @@ __all__ = [
     FAR_COST,
     HUNGARIAN,
     WIDENED,
-) = range(10)
-N_ASSOCIATION = 10
+    REVIVE_FRAMES,
+    REVIVE_GATE,
+) = range(12)
+N_ASSOCIATION = 12
 
 _COASTED, _MATCHED, _EXTENDED = 0, 1, 3  # lifecycle.UpdateKind
 _YAW = 3
-_X = 10
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -84,7 +91,8 @@ _STEP = (
     " float64[:, :], float64[:], int32[:], float64[:, :], boolean, boolean, int64[:], float64[:],"
     " boolean, boolean, int64, int64, float64,"
     " float64[:, :], int64[:], boolean, float64, float64,"
-    " float64[:, :], float64[:, :], float64[:, :], int64, float64, float64[:, :])"
+    " float64[:, :], float64[:, :], float64[:, :, :], int64, float64, float64[:, :],"
+    " boolean, int64[:], float64[:, :])"
 )
 
 
@@ -126,6 +134,9 @@ def step_frame(
     policy: int,
     coast_decay: float,
     options: F64,
+    models: bool,
+    model: I64,
+    q_diag: F64,
 ) -> tuple[
     I64, I32, F64, F64, F64, F64, I32, I32, I32, I8, I8, F64, F64, F64,
     I64, F64, F64, I32, F64, I8, I8, I32, I32, I32, F64, F64, F64, int,
@@ -136,7 +147,9 @@ def step_frame(
     degenerate ones are dropped here, as nms.drop_degenerate does), walked by NMS in
     ``order`` (or in the STABLE order when it is empty); ``velocity`` is (0, 2) without
     ``has_velocity``. ``assoc`` is the per-class association table (the columns above),
-    ``options`` advance's. Raises InfeasibleBlock."""
+    ``options`` advance's; ``p0`` the births' covariance per class. ``models``: predict by
+    the classes' motion models (``model``, ``q_diag``: motion_kernels.predict_models) instead
+    of ``predict_all`` with ``q``. Raises InfeasibleBlock."""
     # Pre-processing (Tracker._preprocess).
     n = params.shape[0]
     keep = np.empty(n, dtype=np.int64)
@@ -174,12 +187,15 @@ def step_frame(
     dt = np.empty(n_t)
     for t in range(n_t):
         dt[t] = stamp - t_update[t]
-    if kalman:
+    nx = x_c.shape[1]
+    if kalman and models:
+        x_pred, p_pred = predict_models(x_c, p_c, dt, cls, model, q_diag)
+    elif kalman:
         x_pred, p_pred = predict_all(x_c, p_c, dt, q)
     else:
-        x_pred = np.empty((n_t, _X))
+        x_pred = np.empty((n_t, nx))
         for t in range(n_t):
-            for i in range(_X):
+            for i in range(nx):
                 x_pred[t, i] = x_c[t, i] + x_c[t, i + 7] * dt[t] if i < 3 else x_c[t, i]
         p_pred = p_c
     pred_box = np.empty((n_t, 7))
@@ -227,6 +243,17 @@ def step_frame(
     for t in range(n_t):
         t_cls[t] = cls[t]
     table = class_table(pool_params, pool_cls, pred_box, t_cls, overlap_kind, exact_vertical)
+    # Lost tracks (revive_frames): their likelihood gate, and no stage-2 extension.
+    if assoc[:, REVIVE_FRAMES].max() > 0.0:
+        lost = lost_tracks(
+            t_cls, tsu, state, assoc[:, REVIVE_FRAMES].copy(), assoc[:, MAX_AGE].copy()
+        )
+        gate_dense(
+            table, pool_params, pool_cls, pred_box, p_pred, lost, t_cls, r,
+            assoc[:, REVIVE_GATE].copy(), assoc[:, FAR_COST].copy(),
+        )  # fmt: skip
+    else:
+        lost = np.zeros(n_t, dtype=np.bool_)
 
     # Stage 1 (Tracker._stage1 and _stage1_reach): the classes present, ascending.
     reach = np.empty(n_t)
@@ -266,7 +293,7 @@ def step_frame(
     n_ext = 0
     for t in range(n_t):
         c = t_cls[t]
-        if update[t] != _COASTED or (key and assoc[c, TWO_STAGE] == 0.0):
+        if update[t] != _COASTED or (key and assoc[c, TWO_STAGE] == 0.0) or lost[t]:
             continue
         limit = assoc[c, STAGE2_MAX]
         for i in range(n_d):

@@ -27,6 +27,7 @@ from simpletrack.core.advance_kernels import (
     POLICY_NUSCENES,
     POLICY_PAPER,
     POLICY_REFERENCE,
+    REVIVE,
     SCORE_DECAY,
     advance,
 )
@@ -46,11 +47,19 @@ from simpletrack.core.config import (
 )
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import UpdateKind
-from simpletrack.core.motion import ConstantVelocity, KalmanFilter, predicted_boxes
+from simpletrack.core.motion import (
+    MODEL_CODES,
+    ConstantVelocity,
+    KalmanFilter,
+    class_noise,
+    predicted_boxes,
+)
+from simpletrack.core.motion_kernels import predict_models
 from simpletrack.core.nms import NMS_WALK_BOXES, drop_degenerate, nms, nms_order
 from simpletrack.core.pair_kernels import NOT_OVERLAP, class_table, overlap_kind
 from simpletrack.core.pairs import DENSE_CELLS, PairTable, far_cost
 from simpletrack.core.reassociation import reassociate
+from simpletrack.core.revive_kernels import gate_dense, gate_pairs, lost_tracks
 from simpletrack.core.state import TrackTable, pack, unpack
 from simpletrack.core.step_kernels import (
     FAR_COST,
@@ -58,6 +67,8 @@ from simpletrack.core.step_kernels import (
     HUNGARIAN,
     MAX_DISTANCE,
     N_ASSOCIATION,
+    REVIVE_FRAMES,
+    REVIVE_GATE,
     SCORE_HIGH,
     SCORE_LOW,
     STAGE2_MAX,
@@ -120,7 +131,16 @@ class Tracker:
             options[code, DELETE_BELOW] = _or(c.delete_below, -np.inf)
             options[code, MAX_POSITION_STD] = _or(c.max_position_std, np.inf)
             options[code, COAST_OUTPUT] = c.coast_output
+            options[code, REVIVE] = c.revive_frames
         self._class_options = options
+        self._revive = options[:, REVIVE].copy()
+        self._max_age_f = options[:, MAX_AGE].copy()
+        self._revive_gate = np.array([_or(c.revive_gate, np.inf) for c in cc])
+        # Motion models (core/motion_kernels.py): a 12-d state when a class has one.
+        # Also for a per-class process noise alone: predict_all has one Q for every track.
+        self._models = config.state_dim > 10 or any(c.process_noise is not None for c in cc)
+        self._model_code = np.array([MODEL_CODES[c.motion_model] for c in cc], dtype=np.int64)
+        self._p0, self._q_diag = class_noise(config)
         assoc = np.zeros((len(cc), N_ASSOCIATION))
         for code, c in enumerate(cc):
             assoc[code, SCORE_HIGH] = c.score_high
@@ -133,6 +153,8 @@ class Tracker:
             assoc[code, FAR_COST] = self._far_cost[code]
             assoc[code, HUNGARIAN] = c.matcher is Matcher.HUNGARIAN
             assoc[code, WIDENED] = c.gate_widening > 0
+            assoc[code, REVIVE_FRAMES] = c.revive_frames
+            assoc[code, REVIVE_GATE] = self._revive_gate[code]
         self._association = assoc
         self._policy = _POLICY_CODES[config.output]
         # An ordinary frame in one compiled call (core/step_kernels.py) unless a class is
@@ -142,7 +164,7 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget every track; IDs restart from 0 (a new stream)."""
-        self.tracks = TrackTable.empty()
+        self.tracks = TrackTable.empty(self.config.state_dim)
         self.frame_count = 0
         self.next_id = 0
         self.last_stamp: float | None = None
@@ -201,6 +223,13 @@ class Tracker:
         # One distance table for both stages: the candidates of either against every track.
         pool = np.flatnonzero(is_high | is_low)
         table = self._distance_table(dets.params[pool], dets.cls[pool], tr.cls, pred_box, p_pred)
+        lost = lost_tracks(
+            tr.cls.astype(np.int64), tr.time_since_update, tr.state, self._revive, self._max_age_f
+        )
+        if lost.any():
+            table = self._gate_lost(
+                table, dets.params[pool], dets.cls[pool], tr.cls, pred_box, p_pred, lost
+            )
         row = np.full(len(dets), -1, dtype=np.int64)
         row[pool] = np.arange(pool.size)
 
@@ -210,7 +239,7 @@ class Tracker:
         )
         update = np.full(len(tr), UpdateKind.COASTED, dtype=np.int8)
         update[matched_trk] = UpdateKind.MATCHED
-        extended = self._stage2(row[is_low], tr.cls, table, update, key)
+        extended = self._stage2(row[is_low], tr.cls, table, update, key, lost)
         update[extended] = UpdateKind.EXTENDED
         if frame.after_gap:
             matched_det, matched_trk, unmatched_det = self._across_gap(
@@ -239,8 +268,8 @@ class Tracker:
             self._association, self._overlap_kind,
             self.config.vertical_overlap is VerticalOverlap.EXACT,
             self.config.non_key.score_high, self.config.non_key.score_low,
-            self._kf.q, self._kf.r, self._kf.p0, self._policy, self.config.coast_score_decay,
-            self._class_options,
+            self._kf.q, self._kf.r, self._p0, self._policy, self.config.coast_score_decay,
+            self._class_options, self._models, self._model_code, self._q_diag,
         )  # fmt: skip
         return self._keep(out[:-1], out[-1] if frame.key_frame else 0, frame.stamp, kalman)
 
@@ -268,6 +297,8 @@ class Tracker:
 
     def _predict(self, tr: TrackTable, stamp: float) -> tuple[F64, F64]:
         dt = stamp - tr.t_update
+        if self.config.motion is MotionModel.KALMAN and self._models:
+            return predict_models(tr.x, tr.p, dt, tr.cls, self._model_code, self._q_diag)
         if self.config.motion is MotionModel.KALMAN:
             return self._kf.predict(tr.x, tr.p, dt)
         return self._cv.predict(tr.x, dt), tr.p
@@ -371,6 +402,35 @@ class Tracker:
                 innovation=innovation,
             )
         return table
+
+    def _gate_lost(
+        self,
+        table: PairTable,
+        d_params: F64,
+        d_cls: npt.NDArray[np.int32],
+        t_cls: npt.NDArray[np.int32],
+        pred_box: F64,
+        p_pred: F64,
+        lost: npt.NDArray[np.bool_],
+    ) -> PairTable:
+        """The table with the lost tracks' pairs that fail their revive_gate at the far cost
+        (core/revive_kernels.py)."""
+        far = self._far_cost
+        if table.matrix is not None:
+            matrix = table.matrix.copy()
+            gate_dense(
+                matrix, d_params, d_cls.astype(np.int64), pred_box, p_pred, lost,
+                t_cls.astype(np.int64), self._kf.r, self._revive_gate, far,
+            )  # fmt: skip
+            return PairTable.empty(table.dense, matrix=matrix)
+        sel = np.flatnonzero(lost[table.cols])
+        if sel.size == 0:
+            return table
+        r, c = table.rows[sel], table.cols[sel]
+        ok = gate_pairs(r, c, d_params, pred_box, p_pred, self._kf.r, self._revive_gate[t_cls[c]])
+        dist = table.dist.copy()
+        dist[sel[~ok]] = far[t_cls[c[~ok]]]
+        return PairTable(rows=table.rows, cols=table.cols, dist=dist, dense=table.dense)
 
     def _stage1(
         self,
@@ -488,10 +548,11 @@ class Tracker:
         table: PairTable,
         update: npt.NDArray[np.int8],
         key: bool,
+        lost: npt.NDArray[np.bool_],
     ) -> I64:
         """Unmatched tracks that some low-score detection agrees with (any detection over
-        ``score_low``, used in stage 1 or not, as the reference does)."""
-        eligible = update == UpdateKind.COASTED
+        ``score_low``, used in stage 1 or not, as the reference does); never a lost one."""
+        eligible = (update == UpdateKind.COASTED) & ~lost
         if key:
             eligible &= self._two_stage[trk_cls]
         if table.matrix is not None:
@@ -565,7 +626,7 @@ class Tracker:
             dets.params, dets.score, dets.cls, _NO_VELOCITY if velocity is None else velocity,
             key, kalman, velocity is not None, self._policy, self.frame_count, self.next_id,
             float(stamp), self.config.coast_score_decay,
-            self._class_options, self._kf.r, self._kf.p0,
+            self._class_options, self._kf.r, self._p0,
         )  # fmt: skip
         return self._keep(out, int(unmatched_det.size) if key else 0, stamp, kalman)
 

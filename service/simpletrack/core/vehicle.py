@@ -214,6 +214,7 @@ class VehicleTracker:
 
     def __init__(self, config: TrackerConfig, fusion: FusionConfig) -> None:
         self.config, self.fusion = config, fusion
+        check_fusable(config, fusion)
         self.sensors = fusion.names
         self._index = {name: i for i, name in enumerate(self.sensors)}
         # The inner tracker reports every live track; the output policy is applied here,
@@ -803,6 +804,29 @@ def _crowded(
     out_mask = np.zeros(len(new), dtype=bool)
     out_mask[b] = near
     return out_mask
+
+
+def check_fusable(config: TrackerConfig, fusion: FusionConfig) -> None:
+    """ValueError naming the class (and sensor) that sets a per-class motion model, process
+    noise or lost tracks (docs/MOTION.md): a fused vehicle's report predicts the tracks no
+    sensor saw with the tracker's constant-velocity filter, and its own life cycle decides
+    what is shown; neither follows a model's states, a class's noise or a lost track yet."""
+    sources: list[tuple[str, dict[str, dict[str, Any]]]] = [
+        ("", {n: c.model_dump() for n, c in config.classes.items()})
+    ]
+    sources += [(f"fusion.sensors.{s}.classes.", t.classes) for s, t in fusion.sensors.items()]
+    for where, classes in sources:
+        for name, fields in classes.items():
+            model = str(fields.get("motion_model", "cv"))
+            revive = int(fields.get("revive_frames", 0))
+            noise = fields.get("process_noise")
+            if model != "cv" or revive or noise is not None:
+                raise ValueError(
+                    f"{where}{name}: motion_model {model}, revive_frames {revive}, "
+                    f"process_noise {noise}: a fused vehicle tracks with motion_model cv, "
+                    "revive_frames 0 and the tracker's kalman noise (per-sensor trackers take "
+                    "all three; docs/MOTION.md)"
+                )
 
 
 def _with_classes(config: TrackerConfig, changes: dict[str, dict[str, Any]]) -> Tracker:

@@ -47,6 +47,7 @@ from pydantic_settings import (
 
 from simpletrack.core.config import PRESETS, TrackerConfig, preset
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
+from simpletrack.core.vehicle import check_fusable
 from simpletrack.server.messages import Where, format_error
 from simpletrack.server.tracker_settings import (
     OneOf,
@@ -477,6 +478,9 @@ class ServiceSettings(BaseSettings):
                     f"fusion.sensors.{sensor}: unknown class {unknown[0]!r}; known: "
                     f"{', '.join(config.classes)}"
                 )
+        fusion = self.fusion.config()
+        if fusion is not None:
+            check_fusable(config, fusion)
         self._tracker_config = config
         return self
 
