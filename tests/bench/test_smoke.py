@@ -173,6 +173,8 @@ def test_mistakes_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixt
         ["core", "--sizes", "50,10"],
         ["core", "--scenes", "3", "--data", str(tmp_path / "nowhere")],
         ["core", "--sweep-frames", "1", "--scenes", "0", "--kitti-sequences", "0"],
+        ["core", "--options", "ctra,warp", "--scenes", "0", "--kitti-sequences", "0"],
+        ["core", "--options", "ctra", "--against", "main", "--scenes", "0"],
         ["service", "--sensors", "0"],
         ["service", "--seconds", "0"],
         ["service", "--source", "nuscenes", "--data", str(tmp_path / "nowhere")],
@@ -181,6 +183,17 @@ def test_mistakes_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixt
         assert main(["bench", *args]) == 2, args
         err = capsys.readouterr().err.strip()
         assert err.startswith("simpletrack bench: error:") and "\n" not in err, err
+
+
+def test_an_option_times_the_load_again_with_its_changes_in_every_class() -> None:
+    from simpletrack.bench.core import Load, _with_options
+
+    config = preset("kitti")
+    load = Load("kitti_all", config, config.class_names, [synthetic_stream(5, 8)])
+    out = _with_options(load, ["ctra_immortal_gated", "ca"], lambda _: None)
+    assert list(out) == ["kitti_all+ctra_immortal_gated", "kitti_all+ca"]
+    assert out["kitti_all+ca"]["frames"] == 8
+    assert out["kitti_all+ca"]["stages"]["calls"]
 
 
 def test_load_generator_payload_is_the_codec_s_bytes() -> None:

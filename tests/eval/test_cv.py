@@ -11,7 +11,16 @@ from pathlib import Path
 import pytest
 
 from simpletrack.cli.main import main
-from simpletrack.eval.cv import BASE, CANDIDATES, Candidate, choose, cross_validate, fold_choices
+from simpletrack.eval.cv import (
+    ALL_CANDIDATES,
+    BASE,
+    CANDIDATES,
+    RULES,
+    Candidate,
+    choose,
+    cross_validate,
+    fold_choices,
+)
 
 KITTI = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "kitti"
 needs_kitti = pytest.mark.skipif(
@@ -37,6 +46,21 @@ def test_a_candidate_replaces_wod_only_when_better_on_both_figures_without_more_
     assert choose(scores, order) == BASE
 
 
+def test_the_gain_rule_wants_half_a_point_of_samota_and_takes_an_equal_mota() -> None:
+    gain = RULES["gain"]
+    order = [BASE, "a", "b", "c"]
+    scores = {
+        BASE: figs(80, 70, 1),
+        "a": figs(80.4, 75, 0),  # under half a point
+        "b": figs(80.5, 70, 1),  # half a point, MOTA equal: taken
+        "c": figs(82, 69.9, 1),  # MOTA lower
+    }
+    assert choose(scores, order, gain) == "b"
+    assert choose(scores, order) == "a"  # "higher" takes any gain with a higher MOTA
+    scores["b"] = figs(80.5, 70, 2)  # one more switch
+    assert choose(scores, order, gain) == BASE
+
+
 def test_of_two_better_candidates_the_higher_sum_wins_and_a_tie_goes_to_the_first() -> None:
     order = [BASE, "a", "b"]
     scores = {BASE: figs(80, 70), "a": figs(82, 72), "b": figs(83, 72)}
@@ -58,8 +82,8 @@ def test_each_fold_is_chosen_on_the_other_sequences_only() -> None:
 
 def test_the_candidates_start_with_wod_and_every_one_is_a_valid_config_for_each_class() -> None:
     assert CANDIDATES[0].name == BASE and not CANDIDATES[0].changes
-    assert len({c.name for c in CANDIDATES}) == len(CANDIDATES)
-    for cand in CANDIDATES:
+    assert len({c.name for c in ALL_CANDIDATES}) == len(ALL_CANDIDATES)
+    for cand in ALL_CANDIDATES:
         for cls in ("Car", "Pedestrian", "Cyclist"):
             config = cand.config(cls)
             assert config.class_names  # built and validated
@@ -122,3 +146,25 @@ def test_cv_refuses_result_files_and_a_bad_job_count(capsys: pytest.CaptureFixtu
     assert "--cv tracks the sequences itself: drop --results" in capsys.readouterr().err
     assert main([*base, "--jobs", "0"]) == 2
     assert "--jobs must be at least 1, not 0" in capsys.readouterr().err
+
+
+def test_a_candidate_in_every_class_changes_each_class_and_nothing_else() -> None:
+    from simpletrack.core.config import preset
+
+    known = {c.name: c for c in ALL_CANDIDATES}
+    base = preset("nuscenes")
+    changed = known["ctra_sim_noise_immortal_gated"].in_every_class(base)
+    for name, c in changed.classes.items():
+        assert (c.motion_model, c.process_noise, c.revive_frames) == ("ctra", (0.1, 1.0), 100)
+        assert (
+            c.model_copy(
+                update={
+                    "motion_model": "cv",
+                    "process_noise": None,
+                    "revive_frames": 0,
+                    "revive_gate": None,
+                }
+            )
+            == base.classes[name]
+        )
+    assert changed.output == base.output and changed.state_dim == 12

@@ -28,6 +28,7 @@ from simpletrack.core.frames import Frame
 from simpletrack.core.tracker import Tracker
 from simpletrack.datasets.kitti import KITTI_CLASSES, TRAIN_SEQUENCES, load_sequence
 from simpletrack.datasets.nuscenes import read_scene, scene_files
+from simpletrack.eval.cv import ALL_CANDIDATES
 
 # The reference's speed, measured by its authors' code on this kind of machine (2 cores,
 # shared); we cannot run it here. Source: ../shared/data/reference/README.md.
@@ -293,6 +294,21 @@ class CoreOptions:
     sizes: tuple[int, ...]
     sweep_frames: int
     sweep_budget_s: float = 5.0
+    # Cross-validation candidates (eval/cv.py) whose cost each real load is timed with too:
+    # the load again with the candidate's changes in every class, named "<load>+<name>".
+    options: tuple[str, ...] = ()
+
+
+def _with_options(
+    load: Load, options: Sequence[str], progress: Callable[[str], None]
+) -> dict[str, Any]:
+    known = {c.name: c for c in ALL_CANDIDATES}
+    out = {}
+    for name in options:
+        progress(f"{load.name} with {name} ...")
+        config = known[name].in_every_class(load.config)
+        out[f"{load.name}+{name}"] = bench_load(Load(load.name, config, load.classes, load.streams))
+    return out
 
 
 def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict[str, Any]:
@@ -308,6 +324,7 @@ def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict
         progress(f"nuScenes: loading {opts.scenes} scenes from {opts.data / 'nuscenes'} ...")
         load = nuscenes_load(opts.data, opts.scenes)
         results["nuscenes"] = bench_load(load)
+        results.update(_with_options(load, opts.options, progress))
         progress("nuScenes again, configured for parity with the reference ...")
         results["nuscenes_parity"] = bench_load(parity_load(load))
         progress("nuScenes as a fused vehicle: the lidar and a front camera ...")
@@ -317,6 +334,7 @@ def run_core(opts: CoreOptions, progress: Callable[[str], None] = print) -> dict
             load = kitti_load(opts.data, classes, opts.kitti_sequences)
             progress(f"KITTI {'+'.join(classes)}: {load.frames} frames ...")
             results[load.name] = bench_load(load)
+            results.update(_with_options(load, opts.options, progress))
     sw = None
     if opts.sizes:
         progress(f"scaling sweep: {', '.join(map(str, opts.sizes))} boxes ...")

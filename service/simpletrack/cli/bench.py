@@ -195,6 +195,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default=5.0,
         help="seconds of timed frames per sweep size, at least 3 frames (default 5)",
     )
+    core.add_argument(
+        "--options",
+        help="comma-separated cross-validation candidates (simpletrack.eval.cv.ALL_CANDIDATES, "
+        "e.g. ctra,immortal): each real load is timed again with the candidate's changes in "
+        "every class, as '<load>+<name>'",
+    )
     core.add_argument("--json", type=Path, help="write every figure to this JSON file")
     core.add_argument("--plot-dir", type=Path, help="write core_scaling.png and core_stages.png")
     _add_against_args(core, rounds=3)
@@ -470,6 +476,23 @@ def _write_json(path: Path | None, doc: dict[str, Any]) -> None:
         print(f"wrote {path}")
 
 
+def _candidate_names(text: str | None) -> tuple[str, ...]:
+    """--options: cross-validation candidates by name (eval/cv.py), checked."""
+    if text is None:
+        return ()
+    from simpletrack.eval.cv import ALL_CANDIDATES
+
+    known = [c.name for c in ALL_CANDIDATES]
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise UserError(
+            f"--options: unknown candidate(s) {', '.join(unknown) or '(none given)'}; "
+            f"known: {', '.join(known)}"
+        )
+    return names
+
+
 # ----------------------------------------------------------------------------- core
 def run_core(args: argparse.Namespace) -> int:
     from simpletrack.bench import plots
@@ -486,6 +509,9 @@ def run_core(args: argparse.Namespace) -> int:
     if args.sweep_frames < 3:
         raise UserError(f"--sweep-frames {args.sweep_frames} must be at least 3")
     _positive(args.sweep_budget, "--sweep-budget", 3600)
+    options = _candidate_names(args.options)
+    if options and args.against is not None:
+        raise UserError("--options times this code only: drop --against (or --options)")
     if args.scenes or args.kitti_sequences:
         args.data = _data(args.data, "or --scenes 0 --kitti-sequences 0 for the sweep alone")
     if args.scenes and not (args.data / "nuscenes" / "centerpoint_val").is_dir():
@@ -520,6 +546,7 @@ def run_core(args: argparse.Namespace) -> int:
         sizes,
         args.sweep_frames,
         args.sweep_budget,
+        options,
     )
     result = bench(opts, progress=lambda m: print(m, file=sys.stderr, flush=True))
     doc = {

@@ -117,8 +117,16 @@ def register(sub: Any) -> None:
     )
     k.add_argument(
         "--candidates",
-        help="with --cv: comma-separated candidate names (default: all of "
-        "simpletrack.eval.cv.CANDIDATES; wod is always first)",
+        help="with --cv: comma-separated candidate names from simpletrack.eval.cv's "
+        "CANDIDATES and MOTION_CANDIDATES (default: all of CANDIDATES; wod is always first)",
+    )
+    k.add_argument(
+        "--rule",
+        choices=["higher", "gain"],
+        default="higher",
+        help="with --cv: when a candidate beats wod: higher (unchained sAMOTA and MOTA higher, "
+        "no more ID switches) or gain (unchained sAMOTA +0.5 or more, MOTA not lower, no "
+        "more ID switches) (default: %(default)s)",
     )
     k.add_argument(
         "--jobs", type=int, default=2, help="worker processes for --cv (default: %(default)s)"
@@ -287,7 +295,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _cross_validate(args: argparse.Namespace, seqs: Sequence[str], classes: Sequence[str]) -> int:
-    from simpletrack.eval.cv import BASE, CANDIDATES, cross_validate, summary_rows
+    from simpletrack.eval.cv import (
+        ALL_CANDIDATES,
+        BASE,
+        CANDIDATES,
+        RULES,
+        cross_validate,
+        summary_rows,
+    )
 
     if args.results is not None:
         raise UserError("--cv tracks the sequences itself: drop --results")
@@ -295,7 +310,7 @@ def _cross_validate(args: argparse.Namespace, seqs: Sequence[str], classes: Sequ
         raise UserError(f"--jobs must be at least 1, not {args.jobs}")
     candidates = list(CANDIDATES)
     if args.candidates is not None:
-        known = {c.name: c for c in CANDIDATES}
+        known = {c.name: c for c in ALL_CANDIDATES}
         names = _split(args.candidates, "candidates")
         unknown = [n for n in names if n not in known]
         if unknown:
@@ -303,12 +318,14 @@ def _cross_validate(args: argparse.Namespace, seqs: Sequence[str], classes: Sequ
         candidates = [known[BASE], *(known[n] for n in names if n != BASE)]
     started = time.perf_counter()
     try:
-        cv = cross_validate(args.data, seqs, classes, candidates, jobs=args.jobs)
+        cv = cross_validate(
+            args.data, seqs, classes, candidates, jobs=args.jobs, rule=RULES[args.rule]
+        )
     except (FileNotFoundError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(
         f"leave-one-sequence-out on {len(seqs)} sequences, {cv.configurations_tried} "
-        "configurations tried; official figures, unchained in brackets"
+        f"configurations tried, rule {cv.rule}; official figures, unchained in brackets"
     )
     head = ("class", "settings", "sAMOTA %", "MOTA %", "IDS", *CV_EXTRA)
     lines: list[tuple[str, ...]] = [head]
