@@ -154,9 +154,7 @@ class ClassConfig(_Frozen):
         "(e0, e1 in MotionKind's units, squared); none: the model's default "
         "(docs/MOTION.md). Only with a motion_model other than cv",
     )
-    process_noise: (
-        tuple[Annotated[float, Field(gt=0.0)], Annotated[float, Field(gt=0.0)]] | None
-    ) = Field(
+    process_noise: tuple[Variance, Variance] | None = Field(
         None,
         description="none: the tracker's kalman.q on every state. (box, velocity): the "
         "Kalman process noise per frame of this class's tracks on the 7 box states "
@@ -175,8 +173,9 @@ class ClassConfig(_Frozen):
         description="none: a lost track matches under max_distance as any other. A number "
         "T: a lost track also needs d^2 + ln det(2 pi S) <= T for the detection's bird's-eye "
         "centre (d^2 its Mahalanobis distance under the predicted S = P_xy + R_xy): the "
-        "track's likelihood must beat a new object's density exp(-T / 2) per m^2, so the "
-        "longer a track coasts, the nearer a detection must be. Only with revive_frames",
+        "track's likelihood must beat a new object's density exp(-T / 2) per m^2, so a "
+        "prediction that has spread claims less and less, at last nothing. Only with "
+        "revive_frames",
     )
 
     @property
