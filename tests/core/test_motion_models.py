@@ -152,6 +152,10 @@ def test_model_noise_defaults_are_written_down() -> None:
         ClassConfig(model_noise=(0.1, 0.1))
     with pytest.raises(ValueError, match="needs motion kalman"):
         TrackerConfig(classes={"car": ClassConfig(motion_model="ctra")}, motion="constant_velocity")
+    with pytest.raises(ValueError, match=r"process_noise \(0.1, 1.0\) needs motion kalman"):
+        TrackerConfig(
+            classes={"car": ClassConfig(process_noise=(0.1, 1.0))}, motion="constant_velocity"
+        )
 
 
 def test_a_tracker_with_models_restores_its_twelve_states() -> None:

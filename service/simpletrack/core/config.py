@@ -242,6 +242,11 @@ class TrackerConfig(_Frozen):
                         f"class {name!r}: motion_model {c.motion_model.value} needs motion "
                         f"kalman, not {self.motion.value}"
                     )
+                if c.process_noise is not None:
+                    raise ValueError(
+                        f"class {name!r}: process_noise {c.process_noise} needs motion "
+                        f"kalman, not {self.motion.value}"
+                    )
         return self
 
     @property

@@ -243,8 +243,9 @@ class Tracker:
         update[extended] = UpdateKind.EXTENDED
         if frame.after_gap:
             matched_det, matched_trk, unmatched_det = self._across_gap(
-                dets, unmatched_det, matched_det, matched_trk, tr, pred_box, update, frame.stamp
-            )
+                dets, unmatched_det, matched_det, matched_trk, tr, pred_box,
+                (update == UpdateKind.COASTED) & ~lost, frame.stamp,
+            )  # fmt: skip
             update[matched_trk] = UpdateKind.MATCHED
 
         return self._advance(
@@ -577,12 +578,13 @@ class Tracker:
         matched_trk: I64,
         tr: TrackTable,
         pred_box: F64,
-        update: npt.NDArray[np.int8],
+        coasted: npt.NDArray[np.bool_],
         stamp: float,
     ) -> tuple[I64, I64, I64]:
         """Stage-1 matches with the re-associated pairs added, and the detections still
-        unmatched (in their order: they are born next)."""
-        left = np.flatnonzero(update == UpdateKind.COASTED)
+        unmatched (in their order: they are born next). ``coasted``: the tracks that may be
+        re-associated (coasting, and not lost: a lost track comes back only under its gate)."""
+        left = np.flatnonzero(coasted)
         di, ti = reassociate(
             dets.params[unmatched_det, :2],
             dets.cls[unmatched_det],
