@@ -42,10 +42,9 @@ MODEL_Q: dict[MotionKind, tuple[float, float]] = {
 
 def class_noise(config: TrackerConfig) -> tuple[F64, F64]:
     """Per class code: the births' covariance (n_cls, X, X) and the diagonal process noise
-    (n_cls, X), X = config.state_dim: the Kalman settings (or the class's process_noise)
-    over the 10 AB3DMOT states, the
-    model's over its two extra ones (cv: the first alone; a 12-d table's cv rows keep
-    their extra states untouched but for this noise)."""
+    (n_cls, X), X = config.state_dim. Over the 10 AB3DMOT states: the Kalman settings (or
+    the class's process_noise); over the two extra ones: the model's (a 12-d table's cv rows
+    keep their extra states untouched but for this noise)."""
     kal = config.kalman
     dim = config.state_dim
     n = len(config.classes)

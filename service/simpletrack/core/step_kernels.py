@@ -245,12 +245,10 @@ def step_frame(
     table = class_table(pool_params, pool_cls, pred_box, t_cls, overlap_kind, exact_vertical)
     # Lost tracks (revive_frames): their likelihood gate, and no stage-2 extension.
     if assoc[:, REVIVE_FRAMES].max() > 0.0:
-        lost = lost_tracks(
-            t_cls, tsu, state, assoc[:, REVIVE_FRAMES].copy(), assoc[:, MAX_AGE].copy()
-        )
+        lost = lost_tracks(t_cls, tsu, state, assoc[:, REVIVE_FRAMES], assoc[:, MAX_AGE])
         gate_dense(
             table, pool_params, pool_cls, pred_box, p_pred, lost, t_cls, r,
-            assoc[:, REVIVE_GATE].copy(), assoc[:, FAR_COST].copy(),
+            assoc[:, REVIVE_GATE], assoc[:, FAR_COST],
         )  # fmt: skip
     else:
         lost = np.zeros(n_t, dtype=np.bool_)

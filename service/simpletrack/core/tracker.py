@@ -133,9 +133,6 @@ class Tracker:
             options[code, COAST_OUTPUT] = c.coast_output
             options[code, REVIVE] = c.revive_frames
         self._class_options = options
-        self._revive = options[:, REVIVE].copy()
-        self._max_age_f = options[:, MAX_AGE].copy()
-        self._revive_gate = np.array([_or(c.revive_gate, np.inf) for c in cc])
         # Motion models (core/motion_kernels.py): a 12-d state when a class has one.
         # Also for a per-class process noise alone: predict_all has one Q for every track.
         self._models = config.state_dim > 10 or any(c.process_noise is not None for c in cc)
@@ -154,7 +151,7 @@ class Tracker:
             assoc[code, HUNGARIAN] = c.matcher is Matcher.HUNGARIAN
             assoc[code, WIDENED] = c.gate_widening > 0
             assoc[code, REVIVE_FRAMES] = c.revive_frames
-            assoc[code, REVIVE_GATE] = self._revive_gate[code]
+            assoc[code, REVIVE_GATE] = _or(c.revive_gate, np.inf)
         self._association = assoc
         self._policy = _POLICY_CODES[config.output]
         # An ordinary frame in one compiled call (core/step_kernels.py) unless a class is
@@ -223,8 +220,13 @@ class Tracker:
         # One distance table for both stages: the candidates of either against every track.
         pool = np.flatnonzero(is_high | is_low)
         table = self._distance_table(dets.params[pool], dets.cls[pool], tr.cls, pred_box, p_pred)
+        assoc = self._association
         lost = lost_tracks(
-            tr.cls.astype(np.int64), tr.time_since_update, tr.state, self._revive, self._max_age_f
+            tr.cls.astype(np.int64),
+            tr.time_since_update,
+            tr.state,
+            assoc[:, REVIVE_FRAMES],
+            assoc[:, ASSOC_MAX_AGE],
         )
         if lost.any():
             table = self._gate_lost(
@@ -298,11 +300,11 @@ class Tracker:
 
     def _predict(self, tr: TrackTable, stamp: float) -> tuple[F64, F64]:
         dt = stamp - tr.t_update
-        if self.config.motion is MotionModel.KALMAN and self._models:
+        if self.config.motion is not MotionModel.KALMAN:
+            return self._cv.predict(tr.x, dt), tr.p
+        if self._models:
             return predict_models(tr.x, tr.p, dt, tr.cls, self._model_code, self._q_diag)
-        if self.config.motion is MotionModel.KALMAN:
-            return self._kf.predict(tr.x, tr.p, dt)
-        return self._cv.predict(tr.x, dt), tr.p
+        return self._kf.predict(tr.x, tr.p, dt)
 
     def _distance_table(
         self,
@@ -417,18 +419,19 @@ class Tracker:
         """The table with the lost tracks' pairs that fail their revive_gate at the far cost
         (core/revive_kernels.py)."""
         far = self._far_cost
+        gate = self._association[:, REVIVE_GATE]
         if table.matrix is not None:
             matrix = table.matrix.copy()
             gate_dense(
                 matrix, d_params, d_cls.astype(np.int64), pred_box, p_pred, lost,
-                t_cls.astype(np.int64), self._kf.r, self._revive_gate, far,
+                t_cls.astype(np.int64), self._kf.r, gate, far,
             )  # fmt: skip
             return PairTable.empty(table.dense, matrix=matrix)
         sel = np.flatnonzero(lost[table.cols])
         if sel.size == 0:
             return table
         r, c = table.rows[sel], table.cols[sel]
-        ok = gate_pairs(r, c, d_params, pred_box, p_pred, self._kf.r, self._revive_gate[t_cls[c]])
+        ok = gate_pairs(r, c, d_params, pred_box, p_pred, self._kf.r, gate[t_cls[c]])
         dist = table.dist.copy()
         dist[sel[~ok]] = far[t_cls[c[~ok]]]
         return PairTable(rows=table.rows, cols=table.cols, dist=dist, dense=table.dense)

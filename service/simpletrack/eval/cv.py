@@ -195,12 +195,6 @@ RULES = {
 }
 
 
-def better_than_base(
-    figs: dict[str, float], base: dict[str, float], rule: Rule = RULES["higher"]
-) -> bool:
-    return rule.beats(figs, base)
-
-
 def choose(
     scores: dict[str, dict[str, float]], order: Sequence[str], rule: Rule = RULES["higher"]
 ) -> str:
