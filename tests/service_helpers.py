@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -40,6 +41,34 @@ from simpletrack.wire.keys import Keys
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
+
+
+class LogEvents(logging.Handler):
+    """What one of the service's loggers logged: (event, level, fields) per line."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.events: list[tuple[str, int, dict[str, Any]]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.events.append((record.getMessage(), record.levelno, getattr(record, "fields", {})))
+
+    def named(self, event: str) -> list[dict[str, Any]]:
+        return [f for e, _, f in self.events if e == event]
+
+
+@contextlib.contextmanager
+def log_events(name: str) -> Iterator[LogEvents]:
+    """Every line the logger ``name`` logs (DEBUG up) while the block runs."""
+    logger = logging.getLogger(name)
+    handler, level = LogEvents(), logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
+    try:
+        yield handler
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 def wait_for(pred: Callable[[], bool], timeout: float, what: str = "condition") -> None:

@@ -5,7 +5,6 @@ never lost silently. A fake session stands for Zenoh."""
 
 from __future__ import annotations
 
-import logging
 import threading
 import time
 from collections.abc import Iterator
@@ -15,6 +14,7 @@ import pytest
 
 from simpletrack.server.announcer import ITEM_OVERHEAD, Announcer
 from simpletrack.server.metrics import Metrics
+from tests.service_helpers import LogEvents, log_events
 
 CAR = ("car", "lidar")
 BUS = ("bus", "lidar")
@@ -43,29 +43,10 @@ class Clock:
         return self.t
 
 
-class Events(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.events: list[tuple[str, dict[str, Any]]] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.events.append((record.getMessage(), getattr(record, "fields", {})))
-
-    def named(self, event: str) -> list[dict[str, Any]]:
-        return [f for e, f in self.events if e == event]
-
-
 @pytest.fixture
-def events() -> Iterator[Events]:
-    logger = logging.getLogger("simpletrack.pool")
-    handler, level = Events(), logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.DEBUG)
-    try:
+def events() -> Iterator[LogEvents]:
+    with log_events("simpletrack.pool") as handler:
         yield handler
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
 
 
 def announcer(session: Session, **kw: Any) -> tuple[Announcer, Metrics]:
@@ -107,7 +88,7 @@ def test_notices_are_published_in_order_and_tracks_wait_behind_their_sensors() -
 
 
 def test_a_held_put_never_holds_the_caller_and_a_full_backlog_is_counted_and_logged(
-    events: Events,
+    events: LogEvents,
 ) -> None:
     session, clock = Session(), Clock()
     a, metrics = announcer(session, limit_bytes=10 * (2 + ITEM_OVERHEAD), clock=clock)
@@ -138,7 +119,7 @@ def test_a_held_put_never_holds_the_caller_and_a_full_backlog_is_counted_and_log
 
 
 def test_what_still_waits_at_the_stop_past_the_deadline_is_counted_and_logged(
-    events: Events,
+    events: LogEvents,
 ) -> None:
     session = Session()
     a, metrics = announcer(session)

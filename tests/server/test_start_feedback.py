@@ -15,28 +15,13 @@ from simpletrack.core import jit
 from simpletrack.server import app
 from simpletrack.server.app import Service
 from simpletrack.server.settings import load_settings
-
-
-class _Events(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(logging.DEBUG)
-        self.events: list[tuple[str, int, dict[str, object]]] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.events.append((record.getMessage(), record.levelno, getattr(record, "fields", {})))
+from tests.service_helpers import LogEvents, log_events
 
 
 @pytest.fixture
-def events() -> Iterator[_Events]:
-    logger = logging.getLogger("simpletrack.service")
-    handler, level = _Events(), logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.DEBUG)
-    try:
+def events() -> Iterator[LogEvents]:
+    with log_events("simpletrack.service") as handler:
         yield handler
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
 
 
 def readyz(port: int) -> tuple[int, str]:
@@ -52,7 +37,7 @@ def _service() -> Service:
 
 
 def test_a_cold_kernel_cache_is_logged_before_and_after_and_readyz_says_why(
-    monkeypatch: pytest.MonkeyPatch, events: _Events
+    monkeypatch: pytest.MonkeyPatch, events: LogEvents
 ) -> None:
     service = _service()
     http = service._bind_http()  # port 0: any free port
@@ -85,7 +70,7 @@ def test_a_cold_kernel_cache_is_logged_before_and_after_and_readyz_says_why(
 
 
 def test_a_warm_kernel_cache_logs_no_compile(
-    monkeypatch: pytest.MonkeyPatch, events: _Events
+    monkeypatch: pytest.MonkeyPatch, events: LogEvents
 ) -> None:
     monkeypatch.setattr(jit, "cache_state", lambda: jit.CacheState(14, 0, "/cache/here"))
     monkeypatch.setattr(jit, "preload", lambda: None)
