@@ -213,7 +213,7 @@ def test_a_bad_process_count_is_refused_in_one_line(
 ) -> None:
     assert main(["serve", "--processes", n]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == f"simpletrack serve: error: --processes {n!r} must be an integer in 1..64"
+    assert err == f"simpletrack serve: error: --processes {n!r} must be an integer in 1..64 or auto"
 
 
 def test_ports_past_the_last_one_are_refused(capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,5 +1,7 @@
 """``simpletrack serve --processes N``: a supervisor of N ``simpletrack serve`` children, the
 members of one group on one host (one interpreter lock each, so N cores instead of ~1).
+``--processes auto``: N = the usable CPUs (affinity mask, cgroup quota: ``host_cpus``) //
+``workers``, each member's threads; an N of 1 runs in this process, as ``--processes 1``.
 
 Child i gets instance ``<instance>-<i>``, metrics port ``<metrics_port>+i`` (0 stays 0), state
 dir ``<state_dir>/<i>``; in peer mode it listens on the given endpoints with port + i (child 0
@@ -32,14 +34,16 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from types import FrameType
-from typing import Any
+from typing import Any, Literal
 
 from simpletrack.cli.errors import UserError
+from simpletrack.cli.host_cpus import HostCpus, host_cpus
 from simpletrack.server.logs import EventLogger, get_logger
 from simpletrack.server.settings import ServiceSettings
 from simpletrack.wire.messages import NAME_PATTERN
 
 MAX_PROCESSES = 64
+AUTO: Literal["auto"] = "auto"
 RESTARTS_PER_WINDOW = 5
 CRASH_WINDOW_S = 60.0
 FIRST_BACKOFF_S = 0.5
@@ -54,13 +58,53 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h
 log = get_logger("supervisor")
 
 
-def parse_processes(text: str) -> int:
+def parse_processes(text: str) -> int | Literal["auto"]:
+    """N, or ``"auto"`` (any case): the count is then decided from the settings' ``workers``
+    once they are loaded (``auto_processes``)."""
+    if text.strip().lower() == AUTO:
+        return AUTO
     try:
         n = int(text)
     except ValueError:
         n = 0
     if not 1 <= n <= MAX_PROCESSES:
-        raise UserError(f"--processes {text!r} must be an integer in 1..{MAX_PROCESSES}")
+        raise UserError(f"--processes {text!r} must be an integer in 1..{MAX_PROCESSES} or auto")
+    return n
+
+
+def auto_processes(cpus: HostCpus, workers: int) -> tuple[int, str]:
+    """``--processes auto``: as many members as the usable CPUs hold ``workers`` threads each
+    (at least 1, at most ``MAX_PROCESSES``), and the one-line reason to log."""
+    n = max(1, cpus.usable // workers)
+    capped = min(n, MAX_PROCESSES)
+    per = "worker" if workers == 1 else "workers"
+    reason = f"{cpus.describe()} / {workers} {per} per member = {_members(n)}"
+    if cpus.usable < workers:
+        reason += " (at least 1)"
+    if capped < n:
+        reason += f", capped at {MAX_PROCESSES}"
+    return capped, reason
+
+
+def _members(n: int) -> str:
+    return "1 member" if n == 1 else f"{n} members"
+
+
+def resolve(wanted: int | Literal["auto"], workers: int) -> int:
+    """The process count; for ``auto`` logged with its reason (event ``processes_auto``)."""
+    if isinstance(wanted, int):
+        return wanted
+    cpus = host_cpus()
+    n, reason = auto_processes(cpus, workers)
+    log.info(
+        "processes_auto",
+        processes=n,
+        usable_cpus=cpus.usable,
+        affinity_cpus=cpus.affinity,
+        quota_cpus=cpus.quota,
+        workers=workers,
+        reason=reason,
+    )
     return n
 
 
@@ -305,4 +349,12 @@ def supervise(
     return Supervisor(specs).run()
 
 
-__all__ = ["ChildSpec", "RestartPolicy", "Supervisor", "child_specs", "parse_processes"]
+__all__ = [
+    "ChildSpec",
+    "RestartPolicy",
+    "Supervisor",
+    "auto_processes",
+    "child_specs",
+    "parse_processes",
+    "resolve",
+]

@@ -58,6 +58,8 @@ examples:
   # 4 member processes on one host (one core each): instances <id>-0..3, metrics ports
   # 9464..9467, listen ports 7447..7450, state in ./state/0..3
   simpletrack serve --processes 4 --listen tcp/127.0.0.1:7447 --state-dir ./state
+  # as many members as this host's or container's CPUs hold: 8 CPUs / 2 workers = 4
+  simpletrack serve --processes auto --workers 2 --listen tcp/127.0.0.1:7447
 
 --processes N starts N child `simpletrack serve` processes and supervises them: child i gets
 instance <instance>-<i>, metrics port <port>+i (0 stays 0) and state dir <state_dir>/<i>; in
@@ -65,6 +67,12 @@ peer mode it listens on each --listen endpoint's port + i and connects to its si
 vehicle connected to one child reaches them all; in client mode all connect to the same
 routers. SIGTERM/SIGINT go to every child (exit code: the worst child's); a child that dies is
 restarted after a back-off, and one that dies 6 times within a minute stops the group.
+
+--processes auto: N = usable CPUs // workers (the setting, from flag, environment or file),
+at least 1, at most 64. The usable CPUs are the affinity mask's (taskset, cpuset) capped by
+the cgroup CPU quota rounded up (a container's `cpus:`, a pod's `limits.cpu`); the event
+processes_auto logs the figure and how it was reached. An N of 1 runs in this process, as
+--processes 1 does.
 """
 
 
@@ -99,7 +107,8 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--processes",
         metavar="N",
-        help="run N member processes under a supervisor (default 1: this process; see below)",
+        help="run N member processes under a supervisor (default 1: this process; auto: "
+        "usable CPUs / workers; see below)",
     )
     p.set_defaults(func=run, serve_parser=p)
 
@@ -145,9 +154,11 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
 def run(args: argparse.Namespace) -> int:
     from simpletrack.cli import processes
 
-    n = processes.parse_processes(args.processes) if args.processes is not None else 1
+    # Parsed before the settings, so a bad N is refused first; auto needs their workers.
+    wanted = processes.parse_processes(args.processes) if args.processes is not None else 1
     settings = settings_from_args(args)
     logs.configure(settings.log_format, settings.log_level)
+    n = processes.resolve(wanted, settings.workers)
     if n > 1:
         return processes.supervise(args.serve_parser, args, settings, n)
     zenoh.init_log_from_env_or("error")
