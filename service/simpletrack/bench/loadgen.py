@@ -5,10 +5,15 @@ It runs in its own process (started with multiprocessing's ``spawn``: never fork
 ``zenoh.open``), with one Zenoh session for the publishers and the subscriber, so a frame's
 latency is two readings of ONE clock, ``time.monotonic_ns()``: just before the publisher's
 ``put``, and on the subscriber's receipt of the track frame with the same sensor and ``seq``.
+A load spread over several such processes (bench/generators.py) gives each a block of the
+sensors (``LoadSpec.part`` of ``parts``, bench/shares.py); each subscribes to its own
+sensors' answers only, so the two readings stay in the process that published the frame.
 
 Protocol with the parent over a ``Connection``: child sends ``("ready", info)``, waits for
 ``"go"``, sends ``("start", t)`` when the warm-up ends and ``("end", t)`` after the last put,
-then ``("result", dict)`` once every answer arrived or ``drain_s`` passed.
+then ``("result", dict)`` once every answer arrived or ``drain_s`` passed. The result holds
+the process's own CPU time and how late its puts ran against their schedule over the
+measured window (``generator``): what tells a step the generator could not offer.
 
 With ``record_answers`` the result also holds every track frame received, duplicates
 included, as ``(sensor, seq, instance, receipt ns)``, and each put's time: what the scale
@@ -17,7 +22,9 @@ benchmark needs to tell which member answered which frame around a fault.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import threading
 import time
 from collections import Counter
@@ -31,6 +38,7 @@ import numpy as np
 import zenoh
 from zenoh import ext
 
+from simpletrack.bench.shares import chunk_patterns, split_sensors
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.kitti import camera_to_tracker
 from simpletrack.datasets.nuscenes import TYPE_NAMES, scene_files
@@ -70,11 +78,30 @@ class LoadSpec:
     # frames) and a front camera (its view of them, half a period later), answered on the
     # vehicle's key (docs/SERVICE.md, "Vehicle fusion").
     fused: bool = False
+    # This process's share of a load spread over several (bench/generators.py): block
+    # ``part`` of split_sensors(sensors, parts); its rows and seqs keep their global numbers.
+    part: int = 0
+    parts: int = 1
+    cpus: tuple[int, ...] = ()  # run on these CPUs only; () keeps the inherited affinity
 
     @property
     def streams(self) -> int:
         """Input streams: a sensor each, or a vehicle's two."""
-        return self.sensors * (len(FUSED_SENSORS) if self.fused else 1)
+        return self.sensors * self.per_sensor
+
+    @property
+    def per_sensor(self) -> int:
+        return len(FUSED_SENSORS) if self.fused else 1
+
+    @property
+    def own(self) -> range:
+        """This process's sensors (vehicles when fused)."""
+        return split_sensors(self.sensors, self.parts)[self.part]
+
+    @property
+    def rows(self) -> range:
+        """This process's streams, as rows of the whole load."""
+        return range(self.own.start * self.per_sensor, self.own.stop * self.per_sensor)
 
     @property
     def ticks(self) -> int:
@@ -104,6 +131,18 @@ def stream_key(spec: LoadSpec, row: int) -> str:
         return f"{spec.prefix}/{spec.vehicle}/{sensor_name(row)}/detections"
     sensor = FUSED_SENSORS[row % len(FUSED_SENSORS)]
     return f"{spec.prefix}/{vehicle_name(spec.vehicle, row // 2)}/{sensor}/detections"
+
+
+def answer_keys(spec: LoadSpec, leaf: str) -> list[str]:
+    """The key expressions this process hears ``leaf`` (tracks, errors) on: every sensor's
+    when it holds the whole load; else its own block's only, so no other process's answers
+    reach it (and cost it nothing)."""
+    if spec.fused:
+        names = ["*"] if spec.parts == 1 else chunk_patterns(spec.vehicle, spec.own)
+        sensor = "@vehicle" if leaf == "tracks" else "*"  # a vehicle answers on its own key
+        return [f"{spec.prefix}/{name}/{sensor}/{leaf}" for name in names]
+    names = ["*"] if spec.parts == 1 else chunk_patterns("s", spec.own)
+    return [f"{spec.prefix}/{spec.vehicle}/{name}/{leaf}" for name in names]
 
 
 def front_view(columns: dict[str, Any]) -> dict[str, Any]:
@@ -217,12 +256,18 @@ def load_streams(spec: LoadSpec) -> list[list[dict[str, Any]]]:
 
 # ----------------------------------------------------------------------------- the run
 class Receiver:
-    """Subscriber callbacks: receipt times by (sensor, seq), errors by reason."""
+    """Subscriber callbacks: receipt times by (this process's row, seq), errors by reason."""
 
     def __init__(self, spec: LoadSpec) -> None:
         self.spec = spec
-        shape = (spec.streams, spec.ticks)
+        self.rows = spec.rows  # this process's, as rows of the whole load
+        self.first = self.rows.start
+        shape = (len(spec.rows), spec.ticks)
         self.recv_ns = np.zeros(shape, np.int64)
+        # The answer's way back: receipt minus the service's published_ns, both wall clock
+        # on this one host. Long while the service keeps up: this process heard late.
+        self.back_ns = np.zeros(shape, np.int64)
+        self.backed = np.zeros(shape, np.bool_)
         self.refused = np.zeros(shape, np.bool_)
         self.reasons: Counter[str] = Counter()
         self.received = 0
@@ -230,11 +275,16 @@ class Receiver:
         self.unexpected = 0
         self.window_start: int | None = None  # monotonic ns when the warm-up ended
         self.in_window = 0  # track frames received since window_start
-        self.answers: list[tuple[int, int, str, int]] = []  # with spec.record_answers
+        # With spec.record_answers: (the whole load's row, seq, instance, receipt ns).
+        self.answers: list[tuple[int, int, str, int]] = []
+        # The threads the callbacks run in (one per subscriber): with the publishing thread,
+        # the ones that share this process's interpreter lock.
+        self.threads: set[int] = set()
         self.lock = threading.Lock()
 
     def _index(self, sample: zenoh.Sample, payload: bytes) -> tuple[int, int] | None:
-        """(stream row, seq) of a tracks or errors sample."""
+        """(this process's row, seq) of a tracks or errors sample; None for a stream of
+        another process (its subscriptions should never bring one)."""
         parts = str(sample.key_expr).split("/")
         try:
             if not self.spec.fused:
@@ -249,27 +299,33 @@ class Receiver:
                 row = vehicle * len(FUSED_SENSORS) + FUSED_SENSORS.index(sensor)
         except (ValueError, TypeError, IndexError):
             return None
-        if 0 <= row < self.spec.streams and 0 <= seq < self.spec.ticks:
-            return row, seq
+        if row in self.rows and 0 <= seq < self.spec.ticks:
+            return row - self.first, seq
         return None
 
     def on_tracks(self, sample: zenoh.Sample) -> None:
-        now = time.monotonic_ns()
+        now, wall = time.monotonic_ns(), time.time_ns()
+        self.threads.add(threading.get_native_id())
         payload = sample.payload.to_bytes()
         at = self._index(sample, payload)
         instance = str(peek(payload, "instance")) if self.spec.record_answers else ""
+        published = peek(payload, "published_ns")  # none from the echo
         with self.lock:
             if at is not None and self.spec.record_answers:
-                self.answers.append((at[0], at[1], instance, now))
+                self.answers.append((self.first + at[0], at[1], instance, now))
             if at is None or self.recv_ns[at]:
                 self.unexpected += 1
                 return
             self.recv_ns[at] = now
+            if isinstance(published, int):
+                self.back_ns[at] = wall - published
+                self.backed[at] = True
             self.received += 1
             if self.window_start is not None and self.window_start <= now:
                 self.in_window += 1
 
     def on_errors(self, sample: zenoh.Sample) -> None:
+        self.threads.add(threading.get_native_id())
         payload = sample.payload.to_bytes()
         reason = str(peek(payload, "reason"))
         at = self._index(sample, payload)
@@ -284,43 +340,91 @@ class Receiver:
             return self.received + self.errors
 
 
+I64 = np.ndarray[Any, np.dtype[np.int64]]
+
+
+def phases(spec: LoadSpec, period_ns: int) -> list[int]:
+    """Each of this process's streams' offset in the period. Its sensors spread evenly over
+    the whole period (not a 1/parts slice of it, which would ask the whole load's put rate of
+    one process), shifted so the processes' puts interleave: the service sees the arrivals
+    of one generator. A fused vehicle's camera comes half a period after its lidar."""
+    m, parts, part = len(spec.own), spec.parts, spec.part
+    if spec.fused:
+        half = period_ns // 2
+        return [
+            (i // 2 * parts + part) * half // (m * parts) + (i % 2) * half
+            for i in range(len(spec.rows))
+        ]
+    return [(j * parts + part) * period_ns // (m * parts) for j in range(m)]
+
+
+@dataclass(slots=True)
+class Schedule:
+    """What the puts of one process measured; arrays by (this process's row, tick)."""
+
+    sent_ns: I64  # just before each put
+    late_ns: I64  # how far behind its due time each put started
+    put_ns: I64  # time inside each put: long when Zenoh blocks (BLOCK congestion control)
+    cpu_s: float  # the process's CPU time, every thread, over the measured window
+    python_cpu_s: float  # of which its Python threads' (publishing, callbacks)
+    window_s: float  # the measured window: the warm-up's end to the last put
+
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def thread_cpu() -> dict[int, float]:
+    """CPU seconds (utime + stime) of each thread of this process, by native id."""
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(OSError):  # a thread that ended meanwhile
+            text = Path(f"/proc/self/task/{tid}/stat").read_text()
+            fields = text[text.rindex(")") + 2 :].split()
+            out[int(tid)] = (int(fields[11]) + int(fields[12])) / CLK_TCK
+    return out
+
+
 def _publish(
     spec: LoadSpec,
     pubs: list[Any],  # zenoh.Publisher or an advanced one: both put
     streams: list[list[dict[str, Any]]],
     recv: Receiver,
     conn: Connection,
-) -> tuple[np.ndarray[Any, np.dtype[np.int64]], np.ndarray[Any, np.dtype[np.int64]]]:
-    """Puts on schedule: stream i at tick k is due at t0 + (k + i / S) / rate (a fused
+) -> Schedule:
+    """Puts on schedule: stream i at tick k is due at t0 + k / rate + phases[i] (a fused
     vehicle's camera half a period after its lidar, stamped so)."""
-    n, ticks = spec.streams, spec.ticks
+    rows, ticks = spec.rows, spec.ticks
+    n = len(rows)
     period_ns = int(1e9 / spec.rate_hz)
     sent_ns = np.zeros((n, ticks), np.int64)
     late_ns = np.zeros((n, ticks), np.int64)
+    put_ns = np.zeros((n, ticks), np.int64)
     stamp0 = time.time_ns()
     t0 = time.monotonic_ns() + 50_000_000
-    if spec.fused:
-        half = period_ns // 2
-        offsets = [(i // 2) * half // spec.sensors + (i % 2) * half for i in range(n)]
-    else:
-        offsets = [i * period_ns // n for i in range(n)]
-    names = [stream_key(spec, i).split("/") for i in range(n)]
+    offsets = phases(spec, period_ns)
+    # In time order: a fused vehicle's camera is due after the next vehicles' lidars, and a
+    # put made in row order would run that late (counted as the generator's lag).
+    order = sorted(range(n), key=offsets.__getitem__)
+    names = [stream_key(spec, g).split("/") for g in rows]
+    frames_of = [streams[(g // 2 if spec.fused else g) % len(streams)] for g in rows]
     extrinsic = IDENTITY if spec.fused else None
+    start = cpu0 = 0
+    threads0: dict[int, float] = {}
     for k in range(ticks):
         if k == spec.warm_ticks:
-            start = time.monotonic_ns()
+            start, cpu0, threads0 = time.monotonic_ns(), time.process_time_ns(), thread_cpu()
             with recv.lock:
                 recv.window_start = start
             conn.send(("start", start))
-        for i in range(n):
+        for i in order:
             due = t0 + k * period_ns + offsets[i]
             wait = due - time.monotonic_ns()
             if wait > 0:
                 time.sleep(wait * 1e-9)
-            frames = streams[(i // 2 if spec.fused else i) % len(streams)]
+            frames = frames_of[i]
             columns = frames[k % len(frames)]
             if spec.fused:
-                columns = columns[FUSED_SENSORS[i % 2]]
+                columns = columns[FUSED_SENSORS[rows[i] % 2]]
             payload = detection_payload(
                 names[i][-3], names[i][-2], k, stamp0 + k * period_ns + offsets[i] % period_ns
                 if spec.fused else stamp0 + k * period_ns, columns, extrinsic,
@@ -329,19 +433,62 @@ def _publish(
             pubs[i].put(payload)
             sent_ns[i, k] = now
             late_ns[i, k] = now - due
-    conn.send(("end", time.monotonic_ns()))
-    return sent_ns, late_ns
+            put_ns[i, k] = time.monotonic_ns() - now
+    end = time.monotonic_ns()
+    cpu_s = (time.process_time_ns() - cpu0) * 1e-9
+    threads1 = thread_cpu()
+    conn.send(("end", end))
+    python = {threading.get_native_id()} | recv.threads
+    python_s = sum(threads1.get(t, 0.0) - threads0.get(t, 0.0) for t in python)
+    return Schedule(sent_ns, late_ns, put_ns, cpu_s, python_s, (end - start) * 1e-9)
 
 
-def _result(
-    spec: LoadSpec,
-    sent_ns: np.ndarray[Any, np.dtype[np.int64]],
-    late_ns: np.ndarray[Any, np.dtype[np.int64]],
-    recv: Receiver,
-    cpu_s: float,
-    window_s: float,
-) -> dict[str, Any]:
+def thread_cpus() -> list[int]:
+    """The CPUs any thread of this process may run on (Zenoh's included)."""
+    out: set[int] = set()
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(OSError):  # a thread that ended meanwhile
+            out |= os.sched_getaffinity(int(tid))
+    return sorted(out)
+
+
+def generator_figures(spec: LoadSpec, sched: Schedule, recv: Receiver) -> dict[str, Any]:
+    """This process's own cost and punctuality over the measured window: the evidence for
+    (or against) the generator having limited a step (generators.generator_verdict); and
+    its own frames' count, answers, and answers it should never have heard."""
     w = spec.warm_ticks
+    late_ms = sched.late_ns[:, w:].reshape(-1) * 1e-6
+    back_ms = recv.back_ns[:, w:][recv.backed[:, w:]] * 1e-6
+    window = max(sched.window_s, 1e-9)
+    period_ms = 1e3 / spec.rate_hz
+    return {
+        "process": spec.part,
+        "sensors": [spec.own.start, spec.own.stop],  # [first, last + 1)
+        "cpus": thread_cpus(),
+        "sent": int(sched.sent_ns.size),
+        "received": recv.received,
+        "refused": recv.errors,
+        "unexpected": recv.unexpected,
+        "cpu_s": round(sched.cpu_s, 4),
+        "window_s": round(sched.window_s, 4),
+        "cores": round(sched.cpu_s / window, 4),
+        # The part one interpreter lock serialises: what caps a process near one core, while
+        # Zenoh's own threads (about half the process's CPU here) run beside it.
+        "python_cores": round(sched.python_cpu_s / window, 4),
+        "puts": int(late_ms.size),
+        "lag_p99_ms": round(float(np.percentile(late_ms, 99)), 3) if late_ms.size else 0.0,
+        "lag_max_ms": round(float(late_ms.max()), 3) if late_ms.size else 0.0,
+        "late_puts": int((late_ms > period_ms).sum()),  # more than one period behind
+        "put_share": round(float(sched.put_ns[:, w:].sum()) * 1e-9 / window, 4),
+        "answer_lag_p99_ms": (
+            round(float(np.percentile(back_ms, 99)), 3) if back_ms.size else None
+        ),
+    }
+
+
+def _result(spec: LoadSpec, sched: Schedule, recv: Receiver) -> dict[str, Any]:
+    w = spec.warm_ticks
+    sent_ns = sched.sent_ns
     with recv.lock:
         got = recv.recv_ns[:, w:]
         ok = got > 0
@@ -364,9 +511,10 @@ def _result(
             "received_during_window": recv.in_window,
             "latency_s": latency_s.tolist(),
             "worst_per_tick_ms": [round(float(v), 2) for v in per_tick],
-            "put_lateness_s": (late_ns[:, w:].reshape(-1) * 1e-9).tolist(),
-            "loadgen_cpu_s": cpu_s,
-            "window_s": window_s,
+            "put_lateness_s": (sched.late_ns[:, w:].reshape(-1) * 1e-9).tolist(),
+            "loadgen_cpu_s": sched.cpu_s,
+            "window_s": sched.window_s,
+            "generator": generator_figures(spec, sched, recv),
             **(
                 {"answers": list(recv.answers), "sent_ns": sent_ns.tolist()}
                 if spec.record_answers
@@ -375,20 +523,26 @@ def _result(
         }
 
 
+def pin(cpus: tuple[int, ...]) -> None:
+    """Every thread of this process onto ``cpus`` (threads started later inherit it): on
+    Linux the affinity is per thread, and numpy's start-up may already have started some."""
+    for tid in os.listdir("/proc/self/task"):
+        os.sched_setaffinity(int(tid), cpus)
+
+
 def run(conn: Connection, spec: LoadSpec) -> None:
     """The spawned process's entry point."""
     try:
+        if spec.cpus:
+            pin(spec.cpus)
         streams = load_streams(spec)
         recv = Receiver(spec)
-        base = f"{spec.prefix}/{spec.vehicle}"
         with open_session(mode="peer", connect=[spec.endpoint, *spec.connect]) as session:
-            if spec.fused:
-                base = f"{spec.prefix}/*"
-                session.declare_subscriber(f"{base}/@vehicle/tracks", recv.on_tracks)
-            else:
-                session.declare_subscriber(f"{base}/*/tracks", recv.on_tracks)
-            session.declare_subscriber(f"{base}/*/errors", recv.on_errors)
-            keys = [stream_key(spec, i) for i in range(spec.streams)]
+            for key in answer_keys(spec, "tracks"):
+                session.declare_subscriber(key, recv.on_tracks)
+            for key in answer_keys(spec, "errors"):
+                session.declare_subscriber(key, recv.on_errors)
+            keys = [stream_key(spec, g) for g in spec.rows]
             block = zenoh.CongestionControl.BLOCK
             plain = [session.declare_publisher(k, congestion_control=block) for k in keys]
             pubs: list[Any] = plain
@@ -418,17 +572,13 @@ def run(conn: Connection, spec: LoadSpec) -> None:
             conn.send(("ready", {"streams": len(streams), "boxes_mean": float(np.mean(boxes))}))
             if conn.recv() != "go":
                 return
-            cpu0 = time.process_time()
-            sent_ns, late_ns = _publish(spec, pubs, streams, recv, conn)
-            cpu_s = time.process_time() - cpu0
+            sched = _publish(spec, pubs, streams, recv, conn)
             with recv.lock:
-                start = recv.window_start or 0
                 in_window = recv.in_window
-            window_s = (time.monotonic_ns() - start) * 1e-9
             deadline = time.monotonic() + spec.drain_s
-            while recv.answered() < sent_ns.size and time.monotonic() < deadline:
+            while recv.answered() < sched.sent_ns.size and time.monotonic() < deadline:
                 time.sleep(0.02)
-            result = _result(spec, sent_ns, late_ns, recv, cpu_s, window_s)
+            result = _result(spec, sched, recv)
             result["received_during_window"] = in_window
         conn.send(("result", result))
     except Exception as exc:  # reported to the parent, which turns it into one line

@@ -144,6 +144,33 @@ def core_tables(doc: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
+def _generator_cells(step: dict[str, Any]) -> list[str]:
+    """Generator processes, the busiest one's cores (all its threads, and its interpreter's),
+    the puts' lag behind schedule at p99."""
+    gen = step.get("generator")
+    if gen is None:  # a document from before the generator was split
+        return ["-", "-", "-", "-"]
+    return [
+        str(gen["processes"]),
+        fmt(gen["max_process_cores"]),
+        fmt(gen["max_python_cores"]),
+        fmt(gen["lag_p99_ms"]),
+    ]
+
+
+def generator_line(gen: dict[str, Any]) -> str:
+    """The verdict on a generator-limited step, in one line."""
+    return "generator-limited (not the service): " + "; ".join(gen["why"])
+
+
+def _verdict(step: dict[str, Any]) -> str:
+    if step["saturated"]:
+        return "SATURATED"
+    if step.get("generator_limited"):
+        return "GENERATOR-LIMITED"
+    return "passes" if step["passes"] else "p99 > limit"
+
+
 def service_tables(doc: dict[str, Any]) -> str:
     out = [_load_line(doc), f"latency clock: {doc['clock']}", ""]
     rows = []
@@ -166,7 +193,8 @@ def service_tables(doc: dict[str, Any]) -> str:
                 fmt(s["server_cores"]),
                 fmt(stage.get("track"), 3),
                 fmt(s["loadgen_cores"]),
-                "SATURATED" if s["saturated"] else ("passes" if s["passes"] else "p99 > limit"),
+                *_generator_cells(s),
+                _verdict(s),
             ]
         )
     out += [
@@ -186,6 +214,10 @@ def service_tables(doc: dict[str, Any]) -> str:
                 "cores",
                 "track ms",
                 "loadgen cores",
+                "procs",
+                "busiest",
+                "interp",
+                "lag p99 ms",
                 "",
             ],
             rows,
@@ -195,6 +227,8 @@ def service_tables(doc: dict[str, Any]) -> str:
     for s in doc["steps"]:
         if s["why"]:
             out.append(f"{s['kind']} at {s['sensors']} sensors: " + "; ".join(s["why"]))
+        if s.get("generator_limited"):
+            out.append(f"{s['kind']} at {s['sensors']} sensors: " + generator_line(s["generator"]))
     cap = doc["capacity"]
     unit = "vehicles" if cap.get("vehicles_per_core") is not None else "sensors"
     out += [
@@ -205,7 +239,13 @@ def service_tables(doc: dict[str, Any]) -> str:
         f"{doc['steps'][0]['rate_hz'] if doc['steps'] else '-'} Hz "
         f"(p99 < {cap['p99_limit_ms']:g} ms, nothing refused or lost); first failing: "
         f"{fmt(cap['first_failing_sensors'])}; first saturated: "
-        f"{fmt(cap['first_saturated_sensors'])}",
+        f"{fmt(cap['first_saturated_sensors'])}"
+        + (
+            f"; generator-limited from {cap['first_generator_limited_sensors']} (a capacity "
+            "above that is unmeasured, not absent)"
+            if cap.get("first_generator_limited_sensors") is not None
+            else ""
+        ),
         f"streams per core: {fmt(cap['streams_per_core'], 1)} (1 / (server CPU per frame x rate) "
         f"at {fmt(cap['streams_per_core_from_sensors'])} {unit}, the busiest step that kept "
         f"up); goal >= {cap['goal_streams_per_core']:g}",

@@ -22,7 +22,6 @@ apart from other repeats.
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
 import signal
 import statistics
@@ -34,11 +33,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from simpletrack.bench import loadgen
+from simpletrack.bench.generators import Generators, generator_summary, merge_results
+from simpletrack.bench.report import generator_line
 from simpletrack.bench.service import (
     Server,
     ServiceBenchOptions,
-    expect,
     launch_tracker,
     load_spec,
     measure_step,
@@ -162,31 +161,23 @@ def fault_run(
 ) -> dict[str, Any]:
     """A fresh group streaming ``fault_sensors`` sensors; the last member is hit half-way."""
     bench = opts.bench
-    ctx = multiprocessing.get_context("spawn")  # never fork a process that may hold Zenoh
     progress(f"{fault:8s} {members} members, {opts.fault_sensors} sensors, {bench.seconds:g} s ...")
     with group(members, bench, tmp) as servers:
         base = load_spec(opts.fault_sensors, bench, servers)
         spec = replace(base, drain_s=FAULT_DRAIN_S, record_answers=True)
         victim = servers[-1]
-        parent, child = ctx.Pipe()
-        gen = ctx.Process(target=loadgen.run, args=(child, spec), daemon=True)
-        gen.start()
-        child.close()
-        try:
-            expect(parent, "ready", 120.0)
-            parent.send("go")
-            started = int(expect(parent, "start", bench.warmup_s + 30.0))
+        with Generators(spec, bench.generator_processes, bench.generator_cpus) as gens:
+            gens.expect_all("ready", 120.0)
+            gens.go()
+            started = min(int(t) for t in gens.expect_all("start", bench.warmup_s + 30.0))
             at = started + int(bench.seconds * 0.5e9)
             time.sleep(max(0.0, (at - time.monotonic_ns()) / 1e9))
-            fault_ns = time.monotonic_ns()  # the load generator's clock: CLOCK_MONOTONIC
+            # The generators' clock: CLOCK_MONOTONIC, one per machine, so every process's
+            # receipt times compare with it.
+            fault_ns = time.monotonic_ns()
             os.kill(victim.proc.pid, FAULTS[fault])
-            expect(parent, "end", bench.seconds + 60.0)
-            result = expect(parent, "result", FAULT_DRAIN_S + 60.0)
-        finally:
-            gen.join(10)
-            if gen.is_alive():
-                gen.kill()
-            parent.close()
+            gens.expect_all("end", bench.seconds + 60.0)
+            result = merge_results(gens.expect_all("result", FAULT_DRAIN_S + 60.0))
     out = {
         "fault": fault,
         "signal": FAULTS[fault].name,
@@ -194,6 +185,9 @@ def fault_run(
         "sensors": opts.fault_sensors,
         **fault_figures(
             result["answers"], result["sent_ns"], fault_ns, victim.instance, spec.warm_ticks
+        ),
+        "generator": generator_summary(
+            result["generators"], result["put_lateness_s"], bench.generator_cpus
         ),
     }
     progress("        " + fault_line(out))
@@ -236,6 +230,16 @@ def run_scale(opts: ScaleOptions, progress: Callable[[str], None] = print) -> di
     return {"members": rows, "elapsed_s": round(time.monotonic() - started, 1)}
 
 
+def _generator_cell(gen: dict[str, Any] | None) -> str:
+    """Cores busy in all generator processes, and the busiest one's."""
+    if gen is None:
+        return "—"
+    return (
+        f"{gen['cores']:g} ({gen['processes']} proc, busiest {gen['max_process_cores']:g}, "
+        f"interp {gen['max_python_cores']:g})"
+    )
+
+
 def _cell(value: Any, unit: str = "") -> str:
     if value is None:
         return "—"
@@ -246,15 +250,25 @@ def scale_tables(doc: dict[str, Any]) -> str:
     limit = doc["options"]["p99_limit_ms"]
     lines = [
         f"capacity: most sensors at {doc['options']['rate_hz']:g} Hz with p99 < {limit:g} ms",
-        "| members | capacity | ratio to 1 | cores at max | stopped |",
-        "|---|---|---|---|---|",
+        "| members | capacity | ratio to 1 | cores at max | generator cores at max | stopped |",
+        "|---|---|---|---|---|---|",
     ]
     for r in doc["members"]:
         c = r["capacity"]
+        at_max = next((s for s in r["steps"] if s["sensors"] == c["max_sensors_passing"]), None)
+        gen = at_max["generator"] if at_max and "generator" in at_max else None
         lines.append(
             f"| {r['members']} | {_cell(c['max_sensors_passing'])} | {_cell(r['ratio_to_one'])}"
-            f" | {_cell(c['server_cores_at_max'])} | {r['stopped']} |"
+            f" | {_cell(c['server_cores_at_max'])} | {_generator_cell(gen)} | {r['stopped']} |"
         )
+    limited = [
+        f"{r['members']} member{'s' if r['members'] > 1 else ''}, {s['sensors']} sensors: "
+        + generator_line(s["generator"])
+        for r in doc["members"]
+        for s in r["steps"]
+        if s.get("generator_limited")
+    ]
+    lines += limited
     lines += [
         "",
         "faults: time from the fault to another member's tracks, for the sensors the hit "

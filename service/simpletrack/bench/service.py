@@ -3,15 +3,19 @@
 One *step* = one sensor count S and one server kind:
 - ``tracker``: a fresh ``simpletrack serve`` subprocess (preset nuscenes) on 127.0.0.1;
 - ``echo``: ``simpletrack.bench.echo`` in its place (the Zenoh floor).
-A spawned load-generator process (loadgen.py) publishes S sensors at the rate and times the
-answers. This process opens no Zenoh session: it starts both, and reads the server's CPU
-time from ``/proc/<pid>/stat`` and (tracker only) its ``/metrics`` at the window's edges.
+Spawned load-generator processes (loadgen.py; several with ``generator_processes``, each a
+block of the sensors: generators.py) publish S sensors at the rate and time the answers.
+This process opens no Zenoh session: it starts them, and reads the server's CPU time from
+``/proc/<pid>/stat`` and (tracker only) its ``/metrics`` at the window's edges.
 
 S grows over the given list and stops after the first *saturated* step: the server could
-not keep up (a frame refused, dropped or never answered, or the median latency over the
-limit). A step *passes* when it is not saturated and its p99 is under the limit; on a shared
-machine a few scheduler stalls can fail the p99 of an otherwise idle server, which is why a
-p99 failure alone does not stop the sweep.
+not keep up (a frame refused, dropped or never answered, the median latency over the limit,
+or its receivers holding the generator's puts back). A step *passes* when it is not
+saturated, the generator kept up, and its p99 is under the limit; on a shared machine a few
+scheduler stalls can fail the p99 of an otherwise idle server, which is why a p99 failure
+alone does not stop the sweep. A *generator-limited* step (a generator process at its
+interpreter's limit or behind its schedule: generators.generator_verdict) measured the
+generator, not the service: it is no capacity figure, and S stops growing there too.
 """
 
 from __future__ import annotations
@@ -19,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import json
 import linecache
-import multiprocessing
 import os
 import shutil
 import signal
@@ -31,13 +34,14 @@ import urllib.request
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from simpletrack.bench import loadgen
+from simpletrack.bench.generators import BenchError, Generators, generator_summary, merge_results
+from simpletrack.bench.report import generator_line
 from simpletrack.bench.stats import cdf_ms, summary_ms
 from simpletrack.spawn import free_port, serve_command
 
@@ -62,10 +66,6 @@ verify = false
 """
 
 
-class BenchError(RuntimeError):
-    """A step could not run (server did not start, load generator failed): one line."""
-
-
 @dataclass(frozen=True, slots=True)
 class ServiceBenchOptions:
     sensors: tuple[int, ...]
@@ -84,6 +84,8 @@ class ServiceBenchOptions:
     drain_s: float = 5.0
     subscribe: str = "wide"  # the members' subscribe setting
     fused: bool = False  # vehicles of a lidar and a camera, fused (loadgen.LoadSpec.fused)
+    generator_processes: int = 1  # load-generator processes, each a block of the sensors
+    generator_cpus: tuple[int, ...] = ()  # the CPUs they all run on; () = not pinned
 
 
 # ----------------------------------------------------------------------------- processes
@@ -330,17 +332,6 @@ def _frame_name(frame: str) -> str:
 
 
 # ----------------------------------------------------------------------------- one step
-def expect(conn: Connection, what: str, timeout: float) -> Any:
-    if not conn.poll(timeout):
-        raise BenchError(f"load generator: no {what!r} message within {timeout:.0f} s")
-    tag, value = conn.recv()
-    if tag == "error":
-        raise BenchError(f"load generator: {value}")
-    if tag != what:
-        raise BenchError(f"load generator: expected {what!r}, got {tag!r}")
-    return value
-
-
 def _stage_means(m0: dict[str, float], m1: dict[str, float]) -> dict[str, float | None]:
     out: dict[str, float | None] = {}
     for stage in ("queue", "decode", "track", "publish"):
@@ -404,35 +395,25 @@ def measure_step(
     kind: str, sensors: int, opts: ServiceBenchOptions, servers: Sequence[Server]
 ) -> dict[str, Any]:
     """One step against running servers (several: the members of one group, their CPU and
-    counters added up); the load generator connects to all of them."""
+    counters added up); every load-generator process connects to all of them."""
     spec = load_spec(sensors, opts, servers)
     server = servers[0]
     tracker = kind == "tracker"
-    ctx = multiprocessing.get_context("spawn")  # never fork a process that may hold Zenoh
-    parent, child = ctx.Pipe()
-    gen = ctx.Process(target=loadgen.run, args=(child, spec), daemon=True)
-    gen.start()
-    child.close()
     profiler = None
-    try:
-        ready = expect(parent, "ready", 120.0)
-        parent.send("go")
-        expect(parent, "start", opts.warmup_s + 30.0)
+    with Generators(spec, opts.generator_processes, opts.generator_cpus) as gens:
+        ready = gens.expect_all("ready", 120.0)[0]
+        gens.go()
+        gens.expect_all("start", opts.warmup_s + 30.0)
         cpu0, t0 = cpu_seconds_all(servers), time.monotonic()
         m0 = scrape_all(servers) if tracker else {}
         if opts.profile_dir is not None and tracker and len(servers) == 1:
             prof_path = opts.profile_dir / f"service-{sensors}-sensors.txt"
             profiler = start_profiler(server.proc.pid, opts.seconds, prof_path)
-        expect(parent, "end", opts.seconds + 60.0)
+        gens.expect_all("end", opts.seconds + 60.0)
         cpu1, t1 = cpu_seconds_all(servers), time.monotonic()
         m1 = scrape_all(servers) if tracker else {}
-        result = expect(parent, "result", opts.drain_s + 60.0)
+        result = merge_results(gens.expect_all("result", opts.drain_s + 60.0))
         m2 = scrape_all(servers) if tracker else {}
-    finally:
-        gen.join(10)
-        if gen.is_alive():
-            gen.kill()
-        parent.close()
     profile = None
     if profiler is not None:
         try:
@@ -450,6 +431,7 @@ def measure_step(
     done = max(result["received_during_window"], 1)
     latency = np.asarray(result["latency_s"], np.float64)
     lateness = np.asarray(result["put_lateness_s"], np.float64)
+    generator = generator_summary(result["generators"], lateness, opts.generator_cpus)
     step: dict[str, Any] = {
         "kind": kind,
         "sensors": sensors,
@@ -470,6 +452,9 @@ def measure_step(
         "loadgen_cores": round(result["loadgen_cpu_s"] / max(result["window_s"], 1e-9), 3),
         "put_lateness": summary_ms(lateness),
         "worst_per_tick_ms": result["worst_per_tick_ms"],
+        "unexpected": result["unexpected"],
+        "generator": generator,
+        "generator_limited": generator["limited"],
     }
     if kind == "tracker":
         step["metrics"] = {
@@ -489,7 +474,9 @@ def measure_step(
         step["limit_ms"] = limit
     step["saturated"], step["why"] = saturation(step, limit)
     p99 = step["latency"]["p99_ms"]
-    step["passes"] = not step["saturated"] and p99 is not None and p99 < limit
+    step["passes"] = (
+        not step["saturated"] and not step["generator_limited"] and p99 is not None and p99 < limit
+    )
     return step
 
 
@@ -503,9 +490,8 @@ def saturation(step: dict[str, Any], limit_ms: float) -> tuple[bool, list[str]]:
         why.append(f"{step['refused']} frames refused or dropped")
     if step["lost"]:
         why.append(f"{step['lost']} frames never answered")
-    late = step["put_lateness"]["p99_ms"]
-    if late is not None and late > 1e3 / step["rate_hz"]:
-        why.append(f"load generator behind schedule (put p99 {late:.0f} ms late)")
+    # The generator behind because its puts blocked: the receivers' limit, not its own.
+    why += [f"load generator held back: {w}" for w in step["generator"]["pushed_back"]]
     return bool(why), why
 
 
@@ -513,9 +499,13 @@ def saturation(step: dict[str, Any], limit_ms: float) -> tuple[bool, list[str]]:
 def capacity(steps: list[dict[str, Any]]) -> dict[str, Any]:
     """The saturation point and the per-core figure the goals are stated in."""
     tracker = sorted((s for s in steps if s["kind"] == "tracker"), key=lambda s: s["sensors"])
+    # A generator-limited step says nothing of the service, unless the service refused or
+    # lost frames even at the load it did get (saturated).
+    judged = [s for s in tracker if s["saturated"] or not s.get("generator_limited")]
     passing = [s for s in tracker if s["passes"]]
     first_bad = next((s for s in tracker if s["saturated"]), None)
-    first_fail = next((s for s in tracker if not s["passes"]), None)
+    first_fail = next((s for s in judged if not s["passes"]), None)
+    first_gen = next((s for s in tracker if s.get("generator_limited")), None)
     one = next((s for s in tracker if s["sensors"] == 1), None)
     out: dict[str, Any] = {
         "one_sensor_p99_ms": one["latency"]["p99_ms"] if one else None,
@@ -524,13 +514,14 @@ def capacity(steps: list[dict[str, Any]]) -> dict[str, Any]:
         "server_cores_at_max": passing[-1]["server_cores"] if passing else None,
         "first_failing_sensors": first_fail["sensors"] if first_fail else None,
         "first_saturated_sensors": first_bad["sensors"] if first_bad else None,
+        "first_generator_limited_sensors": first_gen["sensors"] if first_gen else None,
         "streams_per_core": None,
         "streams_per_core_from_sensors": None,
         "goal_streams_per_core": GOAL_STREAMS_PER_CORE,
     }
     # A core spends server_cpu_ms_per_frame on each frame (fixed costs amortised over the
     # busiest step that kept up): that many 10 Hz streams would fill one core.
-    kept_up = [s for s in tracker if not s["saturated"]]
+    kept_up = [s for s in tracker if not s["saturated"] and not s.get("generator_limited")]
     busiest = kept_up[-1] if kept_up else None
     if busiest is not None and busiest["server_cpu_ms_per_frame"] > 0:
         per_frame_s = busiest["server_cpu_ms_per_frame"] * 1e-3
@@ -565,8 +556,12 @@ def sweep(
             steps.append(result)
         if stopped.startswith("time"):
             break
-        if any(s["saturated"] for s in steps if s["kind"] == "tracker" and s["sensors"] == n):
+        here = [s for s in steps if s["kind"] == "tracker" and s["sensors"] == n]
+        if any(s["saturated"] for s in here):
             stopped = f"saturated at {n} {'vehicles' if opts.fused else 'sensors'}"
+            break
+        if any(s.get("generator_limited") for s in here):  # larger steps would measure it too
+            stopped = f"generator-limited at {n} {'vehicles' if opts.fused else 'sensors'}"
             break
     return {
         "steps": steps,
@@ -593,13 +588,20 @@ def run_service_bench(
 
 def step_line(step: dict[str, Any]) -> str:
     lat = step["latency"]
+    gen = step["generator"]
+    flags = []
     if step["saturated"]:
-        flag = "SATURATED: " + "; ".join(step["why"])
-    else:
-        flag = "passes" if step["passes"] else "p99 over the limit"
+        flags.append("SATURATED: " + "; ".join(step["why"]))
+    if step["generator_limited"]:
+        flags.append(generator_line(gen))
+    if not flags:
+        flags.append("passes" if step["passes"] else "p99 over the limit")
     return (
         f"p50 {lat['p50_ms']} ms, p99 {lat['p99_ms']} ms, max {lat['max_ms']} ms; "
         f"{step['received']}/{step['sent']} answered, {step['refused']} refused; "
-        f"server {step['server_cpu_ms_per_frame']} ms CPU/frame, {step['server_cores']} cores "
-        f"-> {flag}"
+        f"server {step['server_cpu_ms_per_frame']} ms CPU/frame, {step['server_cores']} cores; "
+        f"generator {gen['cores']} cores in {gen['processes']} "
+        f"process{'es' if gen['processes'] > 1 else ''} (busiest {gen['max_process_cores']}, "
+        f"its interpreter {gen['max_python_cores']}), "
+        f"lag p99 {gen['lag_p99_ms']} ms -> {'; '.join(flags)}"
     )

@@ -87,10 +87,15 @@ what it measures (for each member count M of --instances):
   ("answers/frame before") and capacity grows with M as far as the machine's cores do (the
   members and the load generator share them). --subscribe owned: each member subscribes to
   the sensors it owns or stands by for only, instead of hearing every frame.
+  The load generator: as in `bench service` (--generator-processes, --generator-cpus; the
+  capacity table's "generator cores at max"; a generator-limited step stops the search).
 
 examples:
   simpletrack bench scale --out out/scale/
   simpletrack bench scale --instances 1,2 --sensors 2 --duration 2 --source synthetic  # smoke
+  # 16 cores: the members on CPUs 4-15, the load generator (4 processes) on 0-3
+  taskset -c 4-15 simpletrack bench scale --instances 1,4,8 --source synthetic \\
+      --sensors 80,160,320,640,1000 --generator-processes 4 --generator-cpus 0-3
 """
 
 SERVICE_EPILOG = """\
@@ -105,21 +110,38 @@ what it measures (one step per sensor count S, each with a fresh server):
   nothing refused, dropped or lost; S stops growing once a step saturates (a frame refused,
   dropped or lost, or the median over --p99-limit: the server fell behind).
 
+the load generator (--generator-processes N, --generator-cpus LIST):
+  one process by default; N processes split the sensors into N contiguous blocks, each with
+  its own Zenoh session publishing its block and hearing only its block's answers (latency
+  is still two readings of one clock, in the process that published the frame). Reported
+  per step: "loadgen cores" (all processes' CPU over the window), "busiest" (the busiest
+  process's cores), "interp" (the busiest process's Python threads, which share one
+  interpreter lock), "lag p99 ms" (how late puts started against their schedule); per
+  process in the JSON (generator.per_process, with the answer lag: the service's
+  published_ns to the callback). GENERATOR-LIMITED: an interpreter over 0.9 cores, the
+  --generator-cpus over 90 % busy, or a put lag or answer lag p99 over 10 ms (puts not
+  blocked): the step measured the generator, not the service; it does not pass, is no
+  capacity figure, and S stops growing there.
+
 examples:
   simpletrack bench service
   simpletrack bench service --sensors 1,5,10,20 --seconds 10 --json service.json --plot-dir plots/
   simpletrack bench service --sensors 2 --seconds 1 --source synthetic --no-echo   # smoke
   simpletrack bench service --sensors 1,10,20 --seconds 5 --no-echo --against main
+  # 16 cores: the service on CPUs 4-15, the load generator (4 processes) on 0-3
+  taskset -c 4-15 simpletrack bench service --sensors 250,500,1000 --source synthetic \\
+      --no-echo --generator-processes 4 --generator-cpus 0-3
 
 against another revision (--against REF):
   as for `bench core --against`: REF's files from git into a temporary directory (removed
   afterwards), then --rounds rounds of this code's and REF's `simpletrack bench service`,
   alternating, each a fresh process whose server and load generator run that side's code.
   Passed through to both sides: --sensors --seconds --warmup --rate --workers --queue-size
-  --source --data --synthetic-boxes --p99-limit --budget --no-echo; --profile and --plot-dir
-  are refused. A round is two full service benchmarks: with the defaults up to ~2 x 8 min, so
-  the default is 2 rounds and a comparison is best made on a few steps (--sensors 1,10,20
-  --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
+  --source --data --synthetic-boxes --p99-limit --budget --no-echo, and the --generator-*
+  flags when given (REF must know them); --profile and --plot-dir are refused. A round is
+  two full service benchmarks: with the defaults up to ~2 x 8 min, so the default is 2
+  rounds and a comparison is best made on a few steps (--sensors 1,10,20 --seconds 5
+  --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
   latencies and CPU per frame, this/REF for frames/s, sensors and streams per core).
 """
 
@@ -277,6 +299,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         metavar="DIR",
         help="record each service step with py-spy into DIR (needs py-spy)",
     )
+    _add_generator_args(svc)
     svc.add_argument("--json", type=Path, help="write every figure to this JSON file")
     svc.add_argument(
         "--plot-dir", type=Path, help="write service_latency_cdf.png and service_capacity.png"
@@ -339,6 +362,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default=300.0,
         help="no new capacity step starts past this many seconds per member count (default 300)",
     )
+    _add_generator_args(scale)
     scale.add_argument(
         "--out", type=Path, metavar="DIR", help="write scale.json and scale_capacity.png here"
     )
@@ -446,6 +470,53 @@ def _add_source_args(parser: argparse.ArgumentParser) -> None:
         default=128,
         help="boxes per synthetic frame (default 128, the nuScenes mean)",
     )
+
+
+def _add_generator_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--generator-processes",
+        type=int,
+        default=1,
+        metavar="N",
+        help="load-generator processes (default 1): the sensors split into N contiguous "
+        "blocks, each process with its own Zenoh session publishing its block and timing "
+        "its block's answers (one clock per process); one process fell behind at 320 "
+        "sensors at 10 Hz on a 16-core host",
+    )
+    parser.add_argument(
+        "--generator-cpus",
+        metavar="LIST",
+        help="run every load-generator process on these CPUs only, e.g. 0-3 or 0,1,2,3: "
+        "a fixed budget for the generator, the service kept off it by running the bench "
+        "under taskset on the other CPUs (taskset -c 4-15 simpletrack bench ... "
+        "--generator-cpus 0-3); default: not pinned",
+    )
+
+
+def _generator(args: argparse.Namespace) -> tuple[int, tuple[int, ...]]:
+    """--generator-processes and --generator-cpus, checked against this machine."""
+    from simpletrack.bench.generators import parse_cpu_list, usable_cpus
+
+    if not (1 <= args.generator_processes <= 64):
+        raise UserError(f"--generator-processes {args.generator_processes} must be in 1..64")
+    if args.generator_cpus is None:
+        return args.generator_processes, ()
+    try:
+        cpus = parse_cpu_list(args.generator_cpus, usable_cpus())
+    except ValueError as exc:
+        raise UserError(f"--generator-cpus {args.generator_cpus!r}: {exc}") from None
+    return args.generator_processes, cpus
+
+
+def _generator_option(args: argparse.Namespace) -> list[str]:
+    """The generator flags for REF's run (--against), only where given: an older REF knows
+    neither."""
+    out = []
+    if args.generator_processes != 1:
+        out += ["--generator-processes", str(args.generator_processes)]
+    if args.generator_cpus is not None:
+        out += ["--generator-cpus", args.generator_cpus]
+    return out
 
 
 def _data(given: Path | None, alternative: str) -> Path:
@@ -595,13 +666,15 @@ def _check_load(args: argparse.Namespace) -> Path:
 
 def run_service(args: argparse.Namespace) -> int:
     from simpletrack.bench import plots
+    from simpletrack.bench.generators import BenchError
     from simpletrack.bench.report import service_tables
-    from simpletrack.bench.service import BenchError, ServiceBenchOptions, run_service_bench
+    from simpletrack.bench.service import ServiceBenchOptions, run_service_bench
     from simpletrack.bench.stats import machine
 
     sensors = _int_list(args.sensors, "--sensors", 1, 1000)  # the service's max_sensors
     _positive(args.seconds, "--seconds", 3600)
     scenes = _check_load(args)
+    processes, cpus = _generator(args)
     if not (1 <= args.queue_size <= 100_000):
         raise UserError(f"--queue-size {args.queue_size} must be in 1..100000")
     if args.profile is not None:
@@ -627,6 +700,7 @@ def run_service(args: argparse.Namespace) -> int:
                 *("--budget", repr(args.budget)),
                 *(("--no-echo",) if args.no_echo else ()),
                 *(("--fused",) if args.fused else ()),
+                *_generator_option(args),
             ],
         )
     _out_paths(args)
@@ -645,6 +719,8 @@ def run_service(args: argparse.Namespace) -> int:
         profile_dir=args.profile,
         p99_limit_ms=args.p99_limit,
         fused=args.fused,
+        generator_processes=processes,
+        generator_cpus=cpus,
     )
     before = machine()
     try:
@@ -654,7 +730,10 @@ def run_service(args: argparse.Namespace) -> int:
     doc = {
         "benchmark": "service",
         "command": "simpletrack " + " ".join(sys.argv[1:]),
-        "clock": "time.monotonic_ns() of the load-generator process (publisher and subscriber)",
+        "clock": "time.monotonic_ns() of the load-generator process (publisher and subscriber)"
+        + (
+            ", in each of the processes, for the frames of its own sensors" if processes > 1 else ""
+        ),
         "options": {
             k: str(v) if isinstance(v, Path) else v
             for k, v in vars(args).items()
@@ -680,15 +759,17 @@ def run_service(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- scale
 def run_scale(args: argparse.Namespace) -> int:
     from simpletrack.bench import plots
+    from simpletrack.bench.generators import BenchError
     from simpletrack.bench.scale import ScaleOptions, scale_tables
     from simpletrack.bench.scale import run_scale as bench
-    from simpletrack.bench.service import BenchError, ServiceBenchOptions
+    from simpletrack.bench.service import ServiceBenchOptions
     from simpletrack.bench.stats import machine
 
     instances = _int_list(args.instances, "--instances", 1, 32)
     sensors = _int_list(args.sensors, "--sensors", 1, 1000)
     _positive(args.duration, "--duration", 3600)
     scenes = _check_load(args)
+    processes, cpus = _generator(args)
     if not (1 <= args.fault_sensors <= 1000):
         raise UserError(f"--fault-sensors {args.fault_sensors} must be in 1..1000")
     _out_paths(argparse.Namespace(json=None, plot_dir=args.out))
@@ -707,6 +788,8 @@ def run_scale(args: argparse.Namespace) -> int:
         profile_dir=None,
         p99_limit_ms=args.p99_limit,
         subscribe=args.subscribe,
+        generator_processes=processes,
+        generator_cpus=cpus,
     )
     opts = ScaleOptions(instances, bench_opts, args.fault_sensors)
     before = machine()
