@@ -14,6 +14,7 @@ from simpletrack.core.boxes import Boxes
 from simpletrack.core.config import TrackerConfig, preset
 from simpletrack.server.plausibility import Cause, Finding, StartThresholds, check_frame
 from simpletrack.wire import BoxArrays
+from simpletrack.wire.codec import Rejection, decode_detection_frame, encode_detection_frame
 from simpletrack.wire.convert import boxes_to_wire
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -45,7 +46,7 @@ def check(
     least_lag_ns: int | None = None,
 ) -> list[Finding]:
     codes = np.zeros(len(boxes), np.int32)
-    return check_frame(
+    found = check_frame(
         boxes,
         stamp_ns,
         NOW,
@@ -55,6 +56,26 @@ def check(
         key_frame=key_frame,
         least_lag_ns=least_lag_ns,
     )
+    # The worker passes the decoder's extents of the columns instead: the same findings.
+    payload = encode_detection_frame(
+        vehicle="v", sensor="s", seq=1, stamp_ns=stamp_ns, frame_id="base_link", boxes=boxes
+    )
+    decoded = decode_detection_frame(payload, class_codes={"Car": 0})
+    if not isinstance(decoded, Rejection):  # past the decoder's bounds: never checked
+        assert decoded.codes is not None
+        again = check_frame(
+            decoded.boxes,
+            stamp_ns,
+            NOW,
+            has_pose=has_pose,
+            codes=decoded.codes,
+            thresholds=THRESHOLDS,
+            key_frame=key_frame,
+            least_lag_ns=least_lag_ns,
+            extents=decoded.extents,
+        )
+        assert again == found
+    return found
 
 
 def causes(found: list[Finding]) -> list[Cause]:

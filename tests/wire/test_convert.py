@@ -9,9 +9,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from simpletrack.core import jit
 from simpletrack.core.boxes import Boxes
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
+from simpletrack.server.finite import first_non_finite
 from simpletrack.wire import (
     BoxArrays,
     DecodedDetections,
@@ -20,6 +22,7 @@ from simpletrack.wire import (
     decode_detection_frame,
     encode_detection_frame,
 )
+from simpletrack.wire.codec import Rejection
 from simpletrack.wire.convert import (
     boxes_from_wire,
     boxes_to_wire,
@@ -27,8 +30,10 @@ from simpletrack.wire.convert import (
     track_boxes_from_wire,
     tracks_from_wire,
     tracks_to_wire,
+    tracks_to_wire_checked,
     wire_states,
 )
+from simpletrack.wire.reasons import ErrorReason
 
 CLASSES = ("Car", "Pedestrian")
 F32, F64, I32, I64 = np.float32, np.float64, np.int32, np.int64
@@ -222,3 +227,100 @@ def test_track_boxes_use_the_callers_class_table_and_drop_the_rest() -> None:
     peds = track_boxes_from_wire(w, classes=("Cyclist", "Pedestrian"))
     assert peds.cls.tolist() == [1]
     assert peds.params.tolist() == [[-1, -2, 0.25, -1.5, 0.75, 0.5, 1.75]]
+
+
+def test_class_codes_follow_the_callers_table_as_it_changes() -> None:
+    """The decoder remembers each table of class names it has looked up for a mapping; a
+    mapping changed since is looked up again (an unknown class is refused at once)."""
+    boxes = BoxArrays(
+        classes=("car", "bus"),
+        class_index=np.array([0, 1, 0], np.int32),
+        center=np.zeros((3, 3), np.float32),
+        size=np.ones((3, 3), np.float32),
+        yaw=np.zeros(3, np.float32),
+        score=np.full(3, 0.5),
+    )
+    payload = encode_detection_frame(
+        vehicle="v", sensor="s", seq=1, stamp_ns=1, frame_id="f", boxes=boxes
+    )
+    codes = {"car": 3, "bus": -1}
+    first = decode_detection_frame(payload, class_codes=codes)
+    assert not isinstance(first, Rejection) and first.codes is not None
+    assert first.codes.tolist() == [3, -1, 3]
+    again = decode_detection_frame(payload, class_codes=codes)
+    assert not isinstance(again, Rejection) and again.codes is not None
+    assert again.codes.tolist() == [3, -1, 3]
+    codes["car"] = 5
+    changed = decode_detection_frame(payload, class_codes=codes)
+    assert not isinstance(changed, Rejection) and changed.codes is not None
+    assert changed.codes.tolist() == [5, -1, 5]
+    del codes["bus"]
+    refused = decode_detection_frame(payload, class_codes=codes)
+    assert isinstance(refused, Rejection)
+    assert (refused.reason, refused.field) == (ErrorReason.UNKNOWN_CLASS, "boxes.classes.1")
+
+
+def random_tracks(n: int, covariance: bool, seed: int) -> Tracks:
+    """n tracks of every state, with or without a covariance, ages in seconds."""
+    rng = np.random.default_rng(seed)
+    cov = rng.normal(0, 2, (n, 6, 6))
+    return Tracks(
+        ids=rng.integers(0, 10**6, n).astype(I64),
+        boxes=random_boxes(n, False),
+        velocity=rng.normal(0, 5, (n, 3)),
+        state=rng.integers(0, 3, n).astype(np.int8),
+        update=rng.integers(0, 2, n).astype(np.int8),
+        hits=rng.integers(0, 50, n).astype(I32),
+        age=rng.integers(0, 90, n).astype(I32),
+        time_since_update=rng.integers(0, 3, n).astype(I32),
+        covariance=(cov + cov.transpose(0, 2, 1)) if covariance else None,
+        age_s=rng.uniform(0, 9, n),
+        time_since_update_s=rng.uniform(0, 0.3, n),
+    )
+
+
+def poisoned(tracks: Tracks, rng: np.random.Generator) -> Tracks:
+    """One or two values of the float columns NaN, inf, or past float32's range (inf once
+    sent as float32; 3.4028235e38 rounds to float32's largest, 3.4028236e38 too)."""
+    params, velocity = tracks.boxes.params.copy(), tracks.velocity.copy()
+    score, age_s = tracks.boxes.score.copy(), np.array(tracks.age_s)
+    cov = None if tracks.covariance is None else tracks.covariance.copy()
+    columns = [a for a in (params, velocity, score, age_s, cov) if a is not None]
+    for _ in range(int(rng.integers(1, 3))):
+        values = columns[int(rng.integers(len(columns)))]
+        bad = [np.nan, np.inf, -np.inf, 1e39, -1e39, 3.4028235e38, 3.4028236e38]
+        values.flat[int(rng.integers(values.size))] = bad[int(rng.integers(len(bad)))]
+    boxes = dataclasses.replace(tracks.boxes, params=params, score=score)
+    return dataclasses.replace(tracks, boxes=boxes, velocity=velocity, covariance=cov, age_s=age_s)
+
+
+@pytest.mark.parametrize("covariance", [True, False])
+def test_the_compiled_conversion_is_the_numpy_one_with_the_guards_finding(
+    covariance: bool,
+) -> None:
+    """tracks_to_wire_checked (one compiled call) gives tracks_to_wire's columns, byte for
+    byte, and the finite guard's first non-finite (column, row): on ordinary tracks, on none,
+    and on tracks with NaN, inf or values past float32 anywhere in their float columns."""
+    if not jit.compiled():
+        assert tracks_to_wire_checked(three_tracks(), 0, CLASSES) is None
+        pytest.skip("kernels run uncompiled: the service takes tracks_to_wire then")
+    rng = np.random.default_rng(5)
+    cases = [random_tracks(n, covariance, n) for n in (0, 1, 7, 140)]
+    cases += [poisoned(random_tracks(30, covariance, k), rng) for k in range(200)]
+    found = 0
+    for tracks in cases:
+        with np.errstate(all="ignore"):  # the numpy path's casts overflow where poisoned
+            want = tracks_to_wire(tracks, 1000, CLASSES)
+        checked = tracks_to_wire_checked(tracks, 1000, CLASSES)
+        assert checked is not None
+        got, bad = checked
+        assert_identical(got, want)
+        assert all(
+            getattr(got, f.name).flags.c_contiguous
+            for f in dataclasses.fields(got)
+            if isinstance(getattr(got, f.name), np.ndarray)
+        )
+        assert bad == first_non_finite(want)
+        found += bad is not None
+    assert found > 100  # most poisoned ones are refused (not: values rounding into range, a
+    # covariance entry below the diagonal)

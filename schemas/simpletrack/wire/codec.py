@@ -8,7 +8,7 @@ import math
 import re
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar, cast
 
 import msgpack
@@ -25,6 +25,7 @@ from simpletrack.wire.columns import (
 )
 from simpletrack.wire.decoding import (
     DEFAULT_LIMITS,
+    Extents,
     Reject,
     check_version,
     internal_error,
@@ -96,6 +97,10 @@ class DecodedDetections:
     # Per box: the code of its class in the caller's table (``class_codes``), -1 for a
     # class the caller mapped to -1 (ignored). None when no table was given.
     codes: I32 | None
+    # The least and greatest value of each float column (``center``, ``size``, ``yaw``,
+    # ``score``, ``velocity`` when sent) over every row and axis; empty for a frame without
+    # boxes. What the plausibility checks read instead of reducing the columns again.
+    extents: Extents = field(default_factory=dict)
 
 
 class _PydanticModel(Protocol):
@@ -187,24 +192,30 @@ def _frame_error_map(e: FrameError) -> dict[str, Any] | None:
 # --- decoding -----------------------------------------------------------------------------
 
 _DETECTION_PLAN = plan(DETECTION_COLUMNS, "boxes")
+_least = np.minimum.reduce
+_greatest = np.maximum.reduce
 _TRACK_PLANS = {v: plan(cols, "tracks") for v, cols in TRACK_COLUMNS_OF.items()}
 
 
-def _bounded(arr: npt.NDArray[Any], bound: float, field: str, unit: str) -> None:
-    # One reduction on the hot path; the offending row is looked for only on failure.
-    if arr.size and float(np.abs(arr).max()) > bound:
-        row = int(np.argwhere(np.abs(arr) > bound)[0][0])
-        raise Reject(
-            ErrorReason.INVALID_VALUE, field, f"|value| over {bound:g} {unit} in row {row}"
-        )
+def _bounded(
+    arr: npt.NDArray[Any], extent: tuple[float, float] | None, bound: float, field: str, unit: str
+) -> None:
+    # The column's extent (read_columns's) on the hot path; the offending row is looked for
+    # only on failure.
+    if extent is None or max(-extent[0], extent[1]) <= bound:
+        return
+    row = int(np.argwhere(np.abs(arr) > bound)[0][0])
+    raise Reject(ErrorReason.INVALID_VALUE, field, f"|value| over {bound:g} {unit} in row {row}")
 
 
-def _check_bounds(boxes: BoxArrays) -> None:
-    _bounded(boxes.center, MAX_COORDINATE_M, "boxes.center", "m")
-    _bounded(boxes.size, MAX_SIZE_M, "boxes.size", "m")
-    _bounded(boxes.yaw, MAX_YAW_RAD, "boxes.yaw", "rad")
+def _check_bounds(boxes: BoxArrays, extents: Extents) -> None:
+    """Each column's values within their bound (a column of no rows has no extent)."""
+    get = extents.get
+    _bounded(boxes.center, get("center"), MAX_COORDINATE_M, "boxes.center", "m")
+    _bounded(boxes.size, get("size"), MAX_SIZE_M, "boxes.size", "m")
+    _bounded(boxes.yaw, get("yaw"), MAX_YAW_RAD, "boxes.yaw", "rad")
     if boxes.velocity is not None:
-        _bounded(boxes.velocity, MAX_SPEED_MPS, "boxes.velocity", "m/s")
+        _bounded(boxes.velocity, get("velocity"), MAX_SPEED_MPS, "boxes.velocity", "m/s")
 
 
 def _det3(p: list[float]) -> float:
@@ -241,11 +252,33 @@ def rigid_transform(p: list[float] | None, field: str) -> F64 | None:
     return pose
 
 
+# (id of a caller's class_codes, a frame's class table) -> (that class_codes, a copy of
+# it, the codes of the table's names, -2 for a name it lacks; whether any is -2). A sensor
+# sends the same table frame after frame. The caller's mapping is held, so its id names it
+# while cached; the copy says whether it changed since (then the table is worked out again).
+_CodeTable = tuple[Mapping[str, int], dict[str, int], I32, bool]
+_CODE_TABLES: dict[tuple[int, tuple[str, ...]], _CodeTable] = {}
+_CODE_TABLES_CAP = 256  # tables come from the fleet: bounded, cleared whole past it
+
+
+def _code_table(classes: tuple[str, ...], class_codes: Mapping[str, int]) -> tuple[I32, bool]:
+    key = (id(class_codes), classes)
+    hit = _CODE_TABLES.get(key)
+    if hit is not None and hit[0] is class_codes and hit[1] == class_codes:
+        return hit[2], hit[3]
+    table = np.array([class_codes.get(name, -2) for name in classes], dtype=np.int32)
+    unknown = bool((table == -2).any())
+    if len(_CODE_TABLES) >= _CODE_TABLES_CAP:
+        _CODE_TABLES.clear()
+    _CODE_TABLES[key] = (class_codes, dict(class_codes), table, unknown)
+    return table, unknown
+
+
 def _class_codes(boxes: BoxArrays, class_codes: Mapping[str, int]) -> I32:
-    table = np.full(len(boxes.classes), -2, dtype=np.int32)
-    for i, name in enumerate(boxes.classes):
-        table[i] = class_codes.get(name, -2)
-    codes = table[boxes.class_index]
+    table, any_unknown = _code_table(boxes.classes, class_codes)
+    codes: I32 = table[boxes.class_index]
+    if not any_unknown:  # every name of the table is known: so is every box's class
+        return codes
     unknown = codes == -2
     if unknown.any():
         idx = int(boxes.class_index[int(np.argmax(unknown))])
@@ -272,27 +305,26 @@ def decode_detection_frame(
         obj = unpack(payload, limits)
         version = check_version(obj, DETECTION_SCHEMA_VERSIONS)
         frame = validate(DETECTION_FRAMES[version], obj)
-        cols = read_columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes)
+        extents: Extents = {}
+        cols = read_columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes, 0, extents)
         boxes = BoxArrays(classes=tuple(frame.boxes.classes), **cols)
         n_classes = len(boxes.classes)
         if len(boxes) and (
-            int(boxes.class_index.min()) < 0 or int(boxes.class_index.max()) >= n_classes
+            int(_least(boxes.class_index)) < 0 or int(_greatest(boxes.class_index)) >= n_classes
         ):
             raise Reject(
                 ErrorReason.INVALID_VALUE,
                 "boxes.class_index",
                 f"index outside the class table of {n_classes} entries",
             )
-        if len(boxes) and not (boxes.size > 0).all():
+        if len(boxes) and not extents["size"][0] > 0:  # finite already: the least says it
             row = int(np.argwhere(~(boxes.size > 0))[0][0])
             raise Reject(ErrorReason.NON_POSITIVE_SIZE, "boxes.size", f"size <= 0 in row {row}")
-        _check_bounds(boxes)
+        _check_bounds(boxes, extents)
         pose = rigid_transform(frame.pose, "pose")
         extrinsic = rigid_transform(frame.extrinsic, "extrinsic")
         codes = None if class_codes is None else _class_codes(boxes, class_codes)
-        return DecodedDetections(
-            frame=frame, boxes=boxes, pose=pose, extrinsic=extrinsic, codes=codes
-        )
+        return DecodedDetections(frame, boxes, pose, extrinsic, codes, extents)
     except Reject as r:
         return rejection(r, obj)
     except Exception as e:  # a bug in this module; the fuzz test asserts it never happens
@@ -439,13 +471,27 @@ def encode_track_frame(
     if schema_version not in TRACK_COLUMNS_OF:
         raise ValueError(f"TrackFrame schema_version {schema_version!r} is not one of 1, 2, 3")
     columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
-    for spec in TRACK_COLUMNS_OF[schema_version]:
+    for spec, dtype in _TRACK_DTYPES[schema_version]:
         values = getattr(tracks, spec.name)
         if values is None:
             if not spec.optional:
                 raise ValueError(f"a version {schema_version} TrackFrame needs {spec.name}")
             continue
-        columns[spec.name] = to_column(values, spec)
+        # A column as tracks_to_wire makes it (its dtype, contiguous, its width) is its
+        # bytes as they are; anything else goes through to_column's conversion and checks.
+        if (
+            type(values) is np.ndarray
+            and values.dtype == dtype
+            and values.flags.c_contiguous
+            and (
+                values.ndim == 1
+                if spec.width == 1
+                else values.ndim == 2 and values.shape[1] == spec.width
+            )
+        ):
+            columns[spec.name] = values.tobytes()
+        else:
+            columns[spec.name] = to_column(values, spec)
     msg: dict[str, Any] = {
         "schema_version": schema_version,
         "vehicle": vehicle,
@@ -463,6 +509,13 @@ def encode_track_frame(
     if epoch is not None and schema_version >= TRACK_EPOCH_SCHEMA_VERSION:
         msg["epoch"] = epoch
     return pack(msg)
+
+
+# Each TrackFrame version's columns with their numpy dtypes, worked out once.
+_TRACK_DTYPES = {
+    v: tuple((spec, np.dtype(spec.dtype)) for spec in specs)
+    for v, specs in TRACK_COLUMNS_OF.items()
+}
 
 
 def check_epoch(epoch: int | None) -> None:

@@ -108,10 +108,18 @@ TRACK_SPECS = {c.name: c for c in TRACK_COLUMNS}
 VEHICLE_TRACK_SPECS = {c.name: c for c in VEHICLE_TRACK_COLUMNS}
 
 
+# Each of the 21 values' index in a row-major 6x6, in order.
+_UPPER_FLAT = (COVARIANCE_UPPER[0] * 6 + COVARIANCE_UPPER[1]).astype(np.intp)
+
+
 def covariance_to_upper(cov: npt.ArrayLike) -> F32:
     """(N, 6, 6) symmetric matrices as the (N, 21) float32 column."""
     a = np.asarray(cov)
-    return np.ascontiguousarray(a[:, COVARIANCE_UPPER[0], COVARIANCE_UPPER[1]], dtype=np.float32)
+    if a.ndim != 3 or a.shape[1:] != (6, 6):  # what the indexing below would say
+        return np.ascontiguousarray(
+            a[:, COVARIANCE_UPPER[0], COVARIANCE_UPPER[1]], dtype=np.float32
+        )
+    return a.reshape(a.shape[0], 36).take(_UPPER_FLAT, axis=1).astype(np.float32)
 
 
 def covariance_from_upper(upper: npt.ArrayLike) -> F64:

@@ -4,6 +4,7 @@ tables' verdict, the columns' lengths and finiteness, and the ``Rejection`` it e
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -17,6 +18,9 @@ from simpletrack.wire.fields import Invalid, MapSpec
 from simpletrack.wire.reasons import SCHEMA_VERSION, ErrorReason
 
 T = TypeVar("T")
+# The reductions themselves, without ndarray.min's Python wrapper (a frame reads a dozen).
+_least = np.minimum.reduce
+_greatest = np.maximum.reduce
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,11 +134,22 @@ def plan(specs: tuple[ColumnSpec, ...], prefix: str) -> tuple[Column, ...]:
     )
 
 
+Extents = dict[str, tuple[float, float]]  # a float column's (least, greatest) value
+
+
 def read_columns(
-    model: Any, plan: tuple[Column, ...], prefix: str, max_rows: int, sensors: int = 0
+    model: Any,
+    plan: tuple[Column, ...],
+    prefix: str,
+    max_rows: int,
+    sensors: int = 0,
+    extents: Extents | None = None,
 ) -> dict[str, npt.NDArray[Any]]:
     """The columns of a map, in table order: the row cap, then per column its byte length
-    (``count`` rows, a per-sensor column ``sensors`` values wide) and finiteness."""
+    (``count`` rows, a per-sensor column ``sensors`` values wide) and finiteness. Given
+    ``extents``, each finite column of at least one row is judged by its least and greatest
+    value instead (NaN and inf reach them), which are stored there: the later checks of the
+    values' bounds and their plausibility read them instead of reducing the column again."""
     count = int(model.count)
     if count > max_rows:
         raise Reject(
@@ -159,8 +174,16 @@ def read_columns(
         arr = np.frombuffer(buf, dtype=c.dtype)  # what view_column does, minus its lookups
         if c.per_sensor or c.width > 1:
             arr = arr.reshape(count, width)
-        if c.finite and not np.isfinite(arr).all():
-            row = int(np.argwhere(~np.isfinite(arr))[0][0])
-            raise Reject(ErrorReason.NON_FINITE, c.field, f"NaN or inf in row {row}")
+        if c.finite:
+            if extents is not None and count:
+                lo = float(_least(arr, axis=None))
+                hi = float(_greatest(arr, axis=None))
+                finite = math.isfinite(lo) and math.isfinite(hi)
+                extents[c.name] = (lo, hi)
+            else:
+                finite = bool(np.isfinite(arr).all())
+            if not finite:
+                row = int(np.argwhere(~np.isfinite(arr))[0][0])
+                raise Reject(ErrorReason.NON_FINITE, c.field, f"NaN or inf in row {row}")
         out[c.name] = arr
     return out

@@ -55,6 +55,7 @@ _KERNEL_MODULES = (
     "simpletrack.core.advance_kernels",
     "simpletrack.core.step_kernels",
     "simpletrack.core.calibration_kernels",
+    "simpletrack.core.output_kernels",
 )
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"

@@ -19,6 +19,7 @@ from simpletrack.wire.reasons import ErrorReason
 
 # A vehicle's columns are a sensor's and ``existence``: absent (None) in a sensor's tracks.
 FLOAT_COLUMNS = tuple(c.name for c in VEHICLE_TRACK_COLUMNS if c.finite)
+_sum = np.add.reduce  # ndarray.sum without its Python wrapper (eight columns a frame)
 
 
 def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
@@ -30,7 +31,7 @@ def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
                 continue
             # One reduction per column: a NaN or inf makes the sum NaN or inf. A sum of
             # finite values that overflows only sends the column to the exact look below.
-            if math.isfinite(values.sum()):
+            if math.isfinite(_sum(values, axis=None)):
                 continue
             bad = ~np.isfinite(values)
             if bad.any():
@@ -38,10 +39,15 @@ def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
     return None
 
 
-def non_finite_refusal(tracks: TrackArrays, seq: int, stamp_ns: int) -> Rejection | None:
-    """The refusal of a track frame that must not be published, or None when it may be."""
-    bad = first_non_finite(tracks)
-    if bad is None:
+def non_finite_refusal(
+    tracks: TrackArrays, seq: int, stamp_ns: int, bad: tuple[str, int] | bool | None = True
+) -> Rejection | None:
+    """The refusal of a track frame that must not be published, or None when it may be.
+    ``bad``: the first non-finite (column, row) already found (None: none; True, the
+    default: look here)."""
+    if bad is True:
+        bad = first_non_finite(tracks)
+    if bad is None or bad is False:
         return None
     column, row = bad
     return Rejection(

@@ -11,6 +11,7 @@ nuScenes CenterPoint data trips any of them (tests/server/test_plausibility.py).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -132,16 +133,21 @@ def check_frame(
     thresholds: StartThresholds | None = None,
     key_frame: bool = True,
     least_lag_ns: int | None = None,
+    extents: Mapping[str, tuple[float, float]] | None = None,
 ) -> list[Finding]:
     """Every implausibility of one frame (empty: nothing looks wrong). ``codes`` are the
     boxes' tracker class codes (-1: ignored class), needed with ``thresholds``;
-    ``least_lag_ns`` its sensor's least delay lately (``LeastLag``; None: this frame's own)."""
+    ``least_lag_ns`` its sensor's least delay lately (``LeastLag``; None: this frame's own);
+    ``extents`` the least and greatest value of each column (the decoder's,
+    ``DecodedDetections.extents``; None: reduced here)."""
     found = _stamp(stamp_ns, received_ns, least_lag_ns)
     if not len(boxes):
         return found
+    if extents is None:
+        extents = _extents(boxes)
     # The median (a sort) and the span only when one plain reduction says they could trip.
     longest = 0.0
-    if float(boxes.size.max()) > MAX_MEDIAN_SIZE_M:
+    if extents["size"][1] > MAX_MEDIAN_SIZE_M:
         longest = float(np.median(boxes.size.max(axis=1)))
     if longest > MAX_MEDIAN_SIZE_M:
         found.append(
@@ -153,7 +159,11 @@ def check_frame(
             )
         )
     xy = boxes.center[:, :2]
-    far = float(np.abs(xy).max())
+    # |x|, |y| and |z| within half the span: no centre is further out in x or y.
+    lo, hi = extents["center"]
+    far = max(-lo, hi)
+    if far > MAX_SPAN_M / 2:
+        far = float(np.abs(xy).max())
     span = float((xy.max(axis=0) - xy.min(axis=0)).max()) if far > MAX_SPAN_M / 2 else 0.0
     far = far if has_pose else 0.0
     if max(span, far) > MAX_SPAN_M:
@@ -165,21 +175,39 @@ def check_frame(
                 max(span, far),
             )
         )
-    yaw = float(np.abs(boxes.yaw).max())
+    lo, hi = extents["yaw"]
+    yaw = max(-lo, hi)
     if yaw > MAX_YAW_RAD:
         found.append(
             Finding(
                 Cause.YAW_DEGREES, f"yaw looks like degrees (max |yaw| {yaw:.1f}; radians)", yaw
             )
         )
-    found += _scores(boxes, codes, thresholds, key_frame)
+    found += _scores(boxes, extents["score"], codes, thresholds, key_frame)
     return found
 
 
+def _extents(boxes: BoxArrays) -> dict[str, tuple[float, float]]:
+    """What check_frame reads of each column: its least and greatest value."""
+    return {
+        name: (float(values.min()), float(values.max()))
+        for name, values in (
+            ("center", boxes.center),
+            ("size", boxes.size),
+            ("yaw", boxes.yaw),
+            ("score", boxes.score),
+        )
+    }
+
+
 def _scores(
-    boxes: BoxArrays, codes: I32 | None, thresholds: StartThresholds | None, key_frame: bool
+    boxes: BoxArrays,
+    extent: tuple[float, float],
+    codes: I32 | None,
+    thresholds: StartThresholds | None,
+    key_frame: bool,
 ) -> list[Finding]:
-    lo, hi = float(boxes.score.min()), float(boxes.score.max())
+    lo, hi = extent
     found = []
     if lo < 0.0 or hi > 1.0:
         # Only logits go negative; over 1 and never negative may be percentages too.

@@ -79,7 +79,7 @@ from simpletrack.wire.codec import (
     encode_track_frame,
 )
 from simpletrack.wire.columns import TrackArrays
-from simpletrack.wire.convert import frame_from_wire, tracks_to_wire
+from simpletrack.wire.convert import frame_from_wire, tracks_to_wire, tracks_to_wire_checked
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
 from simpletrack.wire.reasons import TRACK_EPOCH_SCHEMA_VERSION, ErrorReason
@@ -89,6 +89,8 @@ NAME_RE = re.compile(NAME_PATTERN)
 HOUSEKEEPING_S = 0.5
 _WARNED_CAP = 10_000  # sensors whose logged causes are remembered (see Worker._warned)
 _CLOCKS_CAP = 16_384  # sensors whose clock is estimated (past it the longest known is dropped)
+_KEYS_CAP = 16_384  # frame keys whose names are remembered (see Worker._names)
+_UNSEEN = ("", "")  # not yet in Worker._key_names (its values are names or None)
 
 
 @dataclass
@@ -174,6 +176,8 @@ class Worker(threading.Thread):
         # vehicle/sensor -> its clock against the service's (plausibility.LeastLag), from
         # its frames as they arrive; forgotten 20 s after its last frame. Read at scrapes.
         self._clocks: dict[str, LeastLag] = {}
+        # frame key -> its (vehicle, sensor) when both are valid names, else None
+        self._key_names: dict[str, tuple[str, str] | None] = {}
         ctx.metrics.watch_clocks(self.clock_lags)
         self._next_snapshot = time.monotonic() + s.snapshot_interval_s
         self._next_checkpoint = time.monotonic() + s.checkpoint_interval_s
@@ -298,13 +302,26 @@ class Worker(threading.Thread):
         it does not hold it yet); keep those it stands by for; ignore the others: as the
         custody machine says. A fused sensor's frames are its vehicle's stream's
         (server/streams.py)."""
-        names = self.ctx.keys.sensor_of(item.key)
-        if names is not None and NAME_RE.fullmatch(names[0]) and NAME_RE.fullmatch(names[1]):
+        names = self._names(item.key)
+        if names is not None:
             key = self.ctx.stream(*names)
             view = self.custody.view(key)
             self._carry(self.custody.machine.frame(key, item, view, time.monotonic()))
             return
         self._track(item)
+
+    def _names(self, key: str) -> tuple[str, str] | None:
+        """(vehicle, sensor) of a frame's key when both are valid names, else None; each
+        key's answer is remembered (a sensor's frames come on one key, frame after frame)."""
+        names = self._key_names.get(key, _UNSEEN)
+        if names is _UNSEEN:
+            split = self.ctx.keys.sensor_of(key)
+            valid = split is not None and all(NAME_RE.fullmatch(name) for name in split)
+            names = split if valid else None
+            if len(self._key_names) >= _KEYS_CAP:
+                self._key_names.clear()  # keys come from the fleet: the memory stays bounded
+            self._key_names[key] = names
+        return names
 
     def _carry(self, acts: list[Action[Inbound]]) -> None:
         """Carry out the custody machine's actions, in order."""
@@ -421,12 +438,13 @@ class Worker(threading.Thread):
         ctx, m = self.ctx, self.ctx.metrics
         t0 = time.perf_counter()
         m.stages["queue"].observe(t0 - item.received_at)
-        vehicle, sensor = ctx.keys.sensor_of(item.key) or ("", "")
-        if not (NAME_RE.fullmatch(vehicle) and NAME_RE.fullmatch(sensor)):
+        names = self._names(item.key)
+        if names is None:
             # No errors key can be derived from a key like this: count and log only.
             m.count_error(ErrorReason.INVALID_VALUE, "")
             log.warning("frame_rejected", key=item.key, reason="invalid_value", field="key")
             return
+        vehicle, sensor = names
         state = self.sensors.sensor(f"{vehicle}/{sensor}")
 
         decoded = decode_detection_frame(item.payload, ctx.limits, ctx.class_codes)
@@ -534,22 +552,31 @@ class Worker(threading.Thread):
         if ignored:
             m.boxes_ignored.inc(ignored)
         fp = FloatingPointErrors()
-        try:
-            with fp:
+        failed: str | None = None
+        with fp:  # one block for the step and the conversion (each entry costs numpy calls)
+            try:
                 tracks = state.tracker.step(tframe)
-        except Exception as e:
-            log.error("tracker_failed", exc=True, vehicle=vehicle, sensor=sensor, seq=seq)
+            except Exception as e:
+                log.error("tracker_failed", exc=True, vehicle=vehicle, sensor=sensor, seq=seq)
+                failed = f"tracker: {e}"[:300]
+            else:
+                t2 = time.perf_counter()
+                # One compiled call with the finite guard's look (None: uncompiled kernels).
+                # A frame it finds NaN or inf in goes the numpy way again: its casts raise
+                # the floating-point errors the event log has always named.
+                checked = tracks_to_wire_checked(tracks, state.id_base, ctx.classes)
+                bad: tuple[str, int] | bool | None = True
+                if checked is None or checked[1] is not None:
+                    wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
+                else:
+                    wire, bad = checked
+        if failed is not None:
             state.before = None  # what keep_undo holds is no longer the state before the last
-            detail = f"tracker: {e}"[:300]
-            r = Rejection(ErrorReason.INTERNAL_ERROR, None, detail, seq, stamp_ns)
+            r = Rejection(ErrorReason.INTERNAL_ERROR, None, failed, seq, stamp_ns)
             self._refuse(item, vehicle, sensor, r)
             return
-        t2 = time.perf_counter()
         m.stages["track"].observe(t2 - t1)
-
-        with fp:
-            wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
-        if not self._publishable(item, state, wire, fp, seq, stamp_ns):
+        if not self._publishable(item, state, wire, fp, seq, stamp_ns, bad):
             return
         self.sensors.reserve_ids(state)  # durable before any of the frame's ids leaves
         version = ctx.settings.tracks_schema_version
@@ -611,6 +638,7 @@ class Worker(threading.Thread):
             thresholds=self.ctx.start_thresholds,
             key_frame=frame.key_frame,
             least_lag_ns=clock.see(frame.stamp_ns, item.received_ns),
+            extents=decoded.extents,
         )
         if found:
             self._warn(vehicle, sensor, seq, found)
@@ -664,15 +692,18 @@ class Worker(threading.Thread):
         fp: FloatingPointErrors,
         seq: int,
         stamp_ns: int,
+        bad: tuple[str, int] | bool | None = True,
     ) -> bool:
         """The guard before publishing (docs/SERVICE.md, "What a fault can cost"): numpy's
         floating-point errors go to the log; a frame with NaN or inf is never published, and
-        the tracker whose state produced it is reset (ids continue above the old ones)."""
+        the tracker whose state produced it is reset (ids continue above the old ones).
+        ``bad``: the first non-finite value's (column, row) if already looked for
+        (finite.non_finite_refusal)."""
         if fp.kinds:
             log.warning(
                 "numeric_warning", vehicle=s.vehicle, sensor=s.sensor, seq=seq, kinds=fp.kinds
             )
-        r = non_finite_refusal(wire, seq, stamp_ns)
+        r = non_finite_refusal(wire, seq, stamp_ns, bad)
         if r is None:
             return True
         dropped_tracks = s.active_tracks
