@@ -4,9 +4,9 @@ its name and state directory (a rolling update): a planner's TrackSubscriber get
 one tracks message per detection frame (on the wire, the killed member's last frame may come
 twice: the member that took it over publishes it again, in case the kill cut its put short),
 and the tracks (ids and boxes) are those one uninterrupted tracker gives on the same frames,
-frame for frame. Peer to peer, through a router process
-with the members its clients, and with per-sensor subscriptions (each member hears only the
-sensors it owns or stands by for)."""
+frame for frame. Peer to peer and through a router process with the members its clients,
+both with the default per-sensor subscriptions (each member hears only the sensors it owns
+or stands by for), and peer to peer with subscribe = "wide"."""
 
 from __future__ import annotations
 
@@ -37,15 +37,15 @@ FRAMES = 150  # 15 s
 
 
 @needs_kitti
-@pytest.mark.parametrize("through", ["peers", "router", "owned"])
+@pytest.mark.parametrize("through", ["peers", "router", "wide"])
 def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
     tmp_path: Path, through: str
 ) -> None:
     frames = fleet_frames(SENSORS, FRAMES)
     router = new_router().start() if through == "router" else None
     group = Group(tmp_path, router=None if router is None else router.endpoint, state=True)
-    if through == "owned":  # per-sensor subscriptions: each member hears only its share
-        group.env["SIMPLETRACK_SUBSCRIBE"] = "owned"
+    if through == "wide":  # one subscriber each on every frame and every tracks message
+        group.env["SIMPLETRACK_SUBSCRIBE"] = "wide"
     fleet = None
     try:
         for name in ("m-a", "m-b", "m-c"):
@@ -113,7 +113,7 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             # heard tracks before its workers existed and dropped what they said).
             failed = [p.name for p in tmp_path.glob("*.log") if "Traceback" in p.read_text()]
             assert not failed, failed
-            if through == "owned":
+            if through != "wide":
                 for m in survivors:
                     values = m.metrics()
                     # A frame or so per sensor that moved, in the instant its subscription

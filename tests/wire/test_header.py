@@ -108,3 +108,37 @@ def test_a_payload_over_the_decoder_s_byte_cap_is_not_read() -> None:
     payload = msgpack.packb({"seq": 3, "stamp_ns": 9, "pad": b"x" * MAX_BYTES})
     assert peek_header(payload) == (None, None) == decoder_reads(payload)
     assert peek_header(msgpack.packb({"seq": 3, "stamp_ns": 9})) == (3, 9)
+
+
+@pytest.mark.parametrize("version", [1, 2, 3])
+def test_peek_heard_reads_what_the_full_decoder_reads_of_a_tracks_message(version: int) -> None:
+    from simpletrack.wire import decode_track_frame, generate
+    from simpletrack.wire.header import peek_heard
+
+    for epoch in (None, 7) if version == 3 else (None,):
+        payload = generate._tracks(version, epoch=epoch) if epoch else generate._tracks(version)
+        out = decode_track_frame(payload)
+        assert not isinstance(out, Rejection)
+        frame, tracks = out
+        next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
+        assert peek_heard(payload) == (frame.stamp_ns, next_id, frame.epoch)
+
+
+@given(st.binary(max_size=300))
+@settings(max_examples=200, deadline=None)
+def test_peek_heard_never_raises_and_reads_nothing_from_garbage(payload: bytes) -> None:
+    from simpletrack.wire.header import peek_heard
+
+    assert peek_heard(payload) is None
+
+
+def test_peek_heard_refuses_an_id_column_that_does_not_match_its_count() -> None:
+    from simpletrack.wire import generate
+    from simpletrack.wire.header import peek_heard
+
+    obj = msgpack.unpackb(generate._tracks(2), raw=False)
+    obj["tracks"]["id"] = obj["tracks"]["id"][:-1]
+    assert peek_heard(msgpack.packb(obj)) is None
+    obj["tracks"]["count"] = 0
+    obj["tracks"]["id"] = b""
+    assert peek_heard(msgpack.packb(obj))[1] == 0  # type: ignore[index]

@@ -17,6 +17,9 @@ Between the instances of a group (docs/SCALE.md):
     <prefix>/@simpletrack/<instance>/handoff/<vehicle>/<sensor>    queryable: the holder
                                                                    releases it, SensorSnapshot
     <prefix>/@simpletrack/<standby>/checkpoint/<vehicle>/<sensor>  owner -> standby: SensorSnapshot
+    <prefix>/@simpletrack/<scout>/plain/<vehicle>/<sensor>         liveliness token: a sensor
+                                                                   published by plain puts;
+                                                                   queryable: its frames heard
 """
 
 from __future__ import annotations
@@ -76,6 +79,11 @@ class Keys:
 
     def checkpoint(self, standby: str, vehicle: str = "*", sensor: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{standby}/checkpoint/{vehicle}/{sensor}"
+
+    def plain(self, scout: str = "*", vehicle: str = "*", sensor: str = "*") -> str:
+        """A sensor the group's scout heard from a publisher without an advanced publisher's
+        token (docs/SCALE.md, "Plain publishers"): its token, and its frames' queryable."""
+        return f"{self.prefix}/{SERVICE_CHUNK}/{scout}/plain/{vehicle}/{sensor}"
 
     def service_sensor_of(self, key: str) -> tuple[str, str] | None:
         """(vehicle, sensor) of a ``<prefix>/@simpletrack/<instance>/<kind>/<v>/<s>`` key."""

@@ -82,7 +82,7 @@ class ServiceBenchOptions:
     profile_dir: Path | None
     p99_limit_ms: float = P99_LIMIT_MS
     drain_s: float = 5.0
-    subscribe: str = "wide"  # the members' subscribe setting
+    subscribe: str = "owned"  # the members' subscribe setting (the service's default)
     fused: bool = False  # vehicles of a lidar and a camera, fused (loadgen.LoadSpec.fused)
     generator_processes: int = 1  # load-generator processes, each a block of the sensors
     generator_cpus: tuple[int, ...] = ()  # the CPUs they all run on; () = not pinned

@@ -85,8 +85,9 @@ what it measures (for each member count M of --instances):
   more: counted apart, "victim's last again"). The members form one group (docs/SCALE.md):
   each sensor is tracked by one member, so before a fault every frame gets one answer
   ("answers/frame before") and capacity grows with M as far as the machine's cores do (the
-  members and the load generator share them). --subscribe owned: each member subscribes to
-  the sensors it owns or stands by for only, instead of hearing every frame.
+  members and the load generator share them). With --subscribe owned (the default) each
+  member subscribes to the sensors it owns or stands by for only; --subscribe wide: every
+  member hears every frame and every tracks message.
   The load generator: as in `bench service` (--generator-processes, --generator-cpus; the
   capacity table's "generator cores at max"; a generator-limited step stops the search).
 
@@ -336,9 +337,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     scale.add_argument(
         "--subscribe",
         choices=("wide", "owned"),
-        default="wide",
-        help="the members' subscribe setting (owned: the load generator publishes with "
-        "advanced publishers, whose tokens the members find sensors by)",
+        default="owned",
+        help="the members' subscribe setting (default owned, the service's: the load generator "
+        "publishes with advanced publishers, whose tokens the members find sensors by; wide: "
+        "every member hears every frame)",
     )
     scale.add_argument(
         "--workers", type=int, default=2, help="worker threads per member (default 2)"

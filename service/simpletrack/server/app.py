@@ -51,11 +51,11 @@ from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, Subscribe, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
 from simpletrack.server.streams import Streams
-from simpletrack.server.subscriptions import Subscriptions
+from simpletrack.server.subscriptions import Subscriptions, TracksHandlers
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
-from simpletrack.wire.codec import DecodeLimits, Rejection, decode_track_frame, encode
-from simpletrack.wire.header import peek_custody
+from simpletrack.wire.codec import DecodeLimits, Rejection, encode
+from simpletrack.wire.header import peek_custody, peek_heard
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import SensorStatus, ServiceStatus
 from simpletrack.wire.reasons import STATUS_SCHEMA_VERSION, ErrorReason
@@ -159,13 +159,17 @@ class Service:
         if s.group:
             self.membership.start(session)
             # Whose tracks planners already have: a takeover publishes only past them.
-            self._declared.append(session.declare_subscriber(self.keys.all_tracks, self._on_tracks))
-            if self.fusion is not None:
+            # ("owned": per stream, with the detections, server/subscriptions.py.)
+            if s.subscribe is Subscribe.WIDE:
                 self._declared.append(
-                    session.declare_subscriber(
-                        self.keys.all_vehicle_tracks, self._on_vehicle_tracks
-                    )
+                    session.declare_subscriber(self.keys.all_tracks, self._on_tracks)
                 )
+                if self.fusion is not None:
+                    self._declared.append(
+                        session.declare_subscriber(
+                            self.keys.all_vehicle_tracks, self._on_vehicle_tracks
+                        )
+                    )
             self.stop_requested.wait(SETTLE_S)
             if self.membership.twin:
                 raise StartError(
@@ -258,6 +262,12 @@ class Service:
                 misses.on_miss,
                 s.history_frames,
                 stream_of=self.streams.stream,
+                tracks=TracksHandlers(self._on_tracks, self._on_vehicle_tracks),
+                intake=intake,
+                on_lost=lambda v, n, k: misses.announce(
+                    v, n, k, "of a plain publisher's first burst, past what the scout keeps"
+                ),
+                idle_s=s.sensor_idle_s,
             )
             self._owned.start()
             self._owned.settle(timeout=5.0)  # this member's share subscribed before its token
@@ -451,12 +461,11 @@ class Service:
         if heard is None:
             return
         names, payload = heard
-        out = decode_track_frame(payload)
-        if isinstance(out, Rejection):
+        peeked = peek_heard(payload)
+        if peeked is None:
             return
-        frame, tracks = out
-        next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, None, frame.epoch)
+        stamp_ns, next_id, epoch = peeked
+        self._heard(f"{names[0]}/{names[1]}", stamp_ns, next_id, None, epoch)
 
     def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
         """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""

@@ -471,6 +471,14 @@ class Intake:
         self._on_received(key)
         self._enqueue(self._route(key), item)
 
+    def inject(self, key: str, payload: bytes) -> None:
+        """A frame heard on the detections key by other means (a plain sensor's frames kept
+        by the group's scout), received now."""
+        if self._wanted is not None and not self._wanted(key):
+            return
+        self._on_received(key)
+        self._enqueue(self._route(key), Inbound(key, payload, time.time_ns(), time.perf_counter()))
+
     def checkpoint(self, sample: zenoh.Sample, detections_key: str) -> None:
         """A checkpoint goes to the worker of the sensor it is of (its own lane)."""
         key = str(sample.key_expr)

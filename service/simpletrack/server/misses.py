@@ -73,16 +73,19 @@ class MissCounter:
             self._metrics.count_missed("", miss.nb)
             log.warning("frames_missed", source=f"{source[0]}/{source[1]}", missed=miss.nb)
             return
-        vehicle, name = sensor
+        self.announce(*sensor, miss.nb, "lost in transport and not in the publisher's cache")
+
+    def announce(self, vehicle: str, name: str, n: int, why: str) -> None:
+        """Count, log and announce ``n`` frames of a sensor that no member will track."""
+        sensor = (vehicle, name)
         with self._lock:
-            total = self.by_sensor[sensor] = self.by_sensor.get(sensor, 0) + miss.nb
-        self._metrics.count_missed(vehicle, miss.nb)
-        log.warning("frames_missed", vehicle=vehicle, sensor=name, missed=miss.nb, total=total)
+            total = self.by_sensor[sensor] = self.by_sensor.get(sensor, 0) + n
+        self._metrics.count_missed(vehicle, n)
+        log.warning("frames_missed", vehicle=vehicle, sensor=name, missed=n, total=total)
         err = missed_notice(
             vehicle,
             name,
-            f"{miss.nb} frames lost in transport and not in the publisher's cache"
-            f" ({total} on this sensor since the service started)",
+            f"{n} frames {why} ({total} on this sensor since the service started)",
             self._instance,
         )
         try:

@@ -360,8 +360,8 @@ class ServiceSettings(BaseSettings):
         description="share the prefix's sensors with the other instances on it: each sensor tracked by one (false: track every sensor heard)",
     )
     subscribe: Subscribe = Field(
-        default=Subscribe.WIDE,
-        description="wide: hear every sensor's frames (any publisher); owned: subscribe per sensor owned or stood by for, found from the vehicles' advanced-publisher tokens (a plain put is not heard)",
+        default=Subscribe.OWNED,
+        description="owned: each member hears the frames and tracks of the sensors it owns or stands by for only, found from the vehicles' advanced-publisher tokens and, for plain puts, by the group's scout (one member hearing every frame); wide: every member hears every frame and every tracks message (its cost grows with the members)",
     )
     checkpoint_interval_s: Seconds = Field(
         default=1.0,

@@ -5,27 +5,138 @@ its inbound traffic is its share of the fleet instead of all of it.
 A ``DetectionPublisher`` (an advanced publisher with publisher detection) holds the token
 ``<detections key>/@adv/pub/<zid>/<eid>/...`` while it lives; a liveliness subscriber on
 ``<prefix>/*/*/detections/@adv/pub/**`` therefore lists the sensors being published. A
-publisher without that token (a plain ``put``) is never heard in this mode: use the default
-``subscribe = "wide"`` for such fleets (docs/SCALE.md).
+publisher without that token (a plain ``put``) is found by the group's scout
+(server/scout.py), whose token ``<prefix>/@simpletrack/<scout>/plain/<v>/<s>`` stands for it:
+such a sensor gets a plain subscriber whose first frames wait until the scout's copies of the
+frames sent before it (the first, at least) are fetched and put ahead of them.
+
+The tracks of the same streams are heard per stream too (a standby learns how far planners
+have them; an owner hears whether another member took its stream over), from other sessions
+only: a member's own tracks teach it nothing.
 
 Declarations happen on this module's own thread, never in a Zenoh callback.
 """
 
 from __future__ import annotations
 
+import heapq
 import threading
+import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import zenoh
 from zenoh import ext
 
 from simpletrack.server.group import Membership, Role, undeclare
+from simpletrack.server.intake import Intake
 from simpletrack.server.logs import get_logger
-from simpletrack.wire.keys import DETECTIONS, Keys
+from simpletrack.server.scout import GATHER_S, Scout, fetch_plain
+from simpletrack.wire.keys import DETECTIONS, SERVICE_CHUNK, VEHICLE_STREAM, Keys
 
 log = get_logger("group")
 ADV_TOKENS = "@adv/pub/**"
+# A sensor stays subscribed this long after its last token went: a router's outage takes
+# every token with it, and the subscriber kept recovers the outage's frames from the
+# vehicle's cache as a wide one does; a plain sensor's scout may have left (the next one
+# announces it again at its next frame).
+GRACE_S = 30.0
+NEW_SENSOR_S = 5.0  # a sensor first published this recently takes its vehicle's whole cache
+# A plain sensor's gate opens once the scout's copies meet the frames heard here (no frame
+# between them), or after QUIET_S without a frame here; at the latest after VERIFY_S.
+QUIET_S, VERIFY_S, RETRY_S = 0.05, 2.0, 0.01
+
+
+@dataclass(frozen=True, slots=True)
+class TracksHandlers:
+    """Who hears the tracks of a sensor stream and of a fused vehicle's stream."""
+
+    sensor: Callable[[zenoh.Sample], None]
+    vehicle: Callable[[zenoh.Sample], None]
+
+
+class _Held:
+    """A plain sensor's subscriber callback: the first frames wait until the scout's copies
+    of earlier ones are in, then each frame goes on once, in the order heard."""
+
+    def __init__(self, deliver: Callable[[zenoh.Sample], None]) -> None:
+        self._deliver = deliver
+        self.lock = threading.Lock()
+        self.held: list[tuple[int, str, bytes]] | None = []  # (wall ns, key, payload)
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            if self.held is not None:
+                self.held.append((time.time_ns(), str(sample.key_expr), sample.payload.to_bytes()))
+                return
+        self._deliver(sample)
+
+
+def before(earlier: list[bytes], heard: list[bytes]) -> int | None:
+    """How many of the scout's frames (``earlier``, in its order) came before the first one
+    heard here, or None if the two lists do not meet. Frames are told apart by their bytes
+    only, so the two must agree frame by frame where they overlap; of the places where they
+    do, the latest (a vehicle that sends a frame twice is then answered twice)."""
+    for i in range(len(earlier) - 1, -1, -1):
+        n = min(len(earlier) - i, len(heard))
+        if earlier[i : i + n] == heard[:n]:
+            return i
+    return None
+
+
+def met(held: _Held, earlier: list[tuple[int, bytes]], waited_s: float) -> bool:
+    """The scout's copies reach a frame heard here (the scout hears a publisher's frames in
+    the order this subscriber does, on its own thread, maybe behind it: then it has every
+    frame before that one); or nothing was heard here for QUIET_S, long enough for the
+    scout's backlog to be through."""
+    with held.lock:
+        heard = [payload for _, _, payload in held.held or ()]
+    if not heard:
+        return waited_s > QUIET_S
+    return before([p for _, p in earlier], heard) is not None
+
+
+def skip_taken(held: _Held, taken: list[bytes]) -> None:
+    """Drop the held frames the scout's own subscriber took in too (the longest run at the
+    head of those held that ends what it took in)."""
+    with held.lock:
+        mine = held.held or []
+        heard = [p for _, _, p in mine]
+        for k in range(min(len(taken), len(heard)), 0, -1):
+            if taken[-k:] == heard[:k]:
+                held.held = mine[k:]
+                return
+
+
+def release(
+    batch: list[tuple[_Held, str, list[tuple[int, bytes]]]], inject: Callable[[str, bytes], None]
+) -> list[int]:
+    """Open the gates of plain sensors subscribed together: of each sensor, the scouts' frames
+    sent before the subscription (in the scout's order), then those held;
+    the sensors' frames interleaved by when they were heard (a fused vehicle's sensors keep
+    their order); then live frames pass. Returns each one's count of frames from the scouts."""
+    for held, _, _ in batch:
+        held.lock.acquire()
+    try:
+        streams: list[list[tuple[int, str, bytes]]] = []
+        extras = []
+        for held, key, earlier in batch:
+            mine = held.held or []
+            # The frames before the subscription: the scout's up to the first heard here
+            # (later ones are here already, or on their way here).
+            n = before([p for _, p in earlier], [p for _, _, p in mine]) if mine else None
+            extra = [(t, key, p) for t, p in earlier[: len(earlier) if n is None else n]]
+            extras.append(len(extra))
+            streams.append(extra + mine)
+            held.held = None
+        # heapq.merge keeps each sensor's own order whatever its clocks say.
+        for _, key, payload in heapq.merge(*streams, key=lambda f: f[0]):
+            inject(key, payload)
+        return extras
+    finally:
+        for held, _, _ in batch:
+            held.lock.release()
 
 
 class Subscriptions:
@@ -38,18 +149,47 @@ class Subscriptions:
         on_miss: Callable[[ext.Miss], None],
         history_frames: int,
         stream_of: Callable[[str, str], str] = lambda v, s: f"{v}/{s}",
+        *,
+        tracks: TracksHandlers | None = None,
+        intake: Intake | None = None,
+        on_lost: Callable[[str, str, int], None] | None = None,
+        idle_s: float = 60.0,
     ) -> None:
         self.session, self.keys, self.membership = session, keys, membership
         self._handler, self._on_miss, self._history = handler, on_miss, history_frames
         self._stream_of = stream_of  # a fused sensor's role is its vehicle's
+        self._tracks, self._intake = tracks, intake  # intake: plain sensors heard (a scout)
         self._tokens: dict[str, set[str]] = {}  # vehicle/sensor -> its publishers' tokens
-        self._subs: dict[str, tuple[Any, Any]] = {}  # vehicle/sensor -> (listener, sub)
+        self._plain: dict[str, set[str]] = {}  # vehicle/sensor -> scouts' plain tokens
+        self._adv_lost: dict[str, float] = {}  # sensor -> when its vehicle's last token went
+        self._plain_lost: dict[str, float] = {}  # sensor -> when its scouts' last token went
+        self._known: set[str] = set()  # sensors ever published with a token while running
+        self._subs: dict[str, tuple[Any, ...]] = {}  # vehicle/sensor -> its entities
+        self._plain_subs: set[str] = set()  # the sensors of _subs subscribed as plain
+        self._track_subs: dict[str, Any] = {}  # stream -> its tracks subscriber
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._idle = threading.Event()
         self._thread = threading.Thread(target=self._run, name="subscriptions", daemon=True)
         self._token_sub: Any = None
+        self._plain_sub: Any = None
+        self._started: float | None = None  # settled at start: tokens seen later are new
+        self._new: dict[str, float] = {}  # sensor -> when its vehicle's first token came
+        self.scout = (
+            Scout(
+                session,
+                keys,
+                membership.me,
+                self._tokened,
+                self._direct,
+                idle_s,
+                self.changed,
+                on_lost,
+            )
+            if intake is not None and on_lost is not None
+            else None
+        )
 
     @property
     def subscribed(self) -> int:
@@ -59,7 +199,27 @@ class Subscriptions:
         self._token_sub = self.session.liveliness().declare_subscriber(
             f"{self.keys.prefix}/*/*/{DETECTIONS}/{ADV_TOKENS}", self._on_token, history=True
         )
+        if self.scout is not None:
+            self._plain_sub = self.session.liveliness().declare_subscriber(
+                self.keys.plain(), self._on_plain_token, history=True
+            )
         self._thread.start()
+
+    def _tokened(self, sensor: str) -> bool:
+        # Dict reads, atomic: no lock on the scout's path. A sensor whose vehicle's token
+        # went a moment ago (a router's outage) is still its own subscribers'.
+        return sensor in self._tokens or sensor in self._adv_lost
+
+    def _direct(self, sensor: str, sample: zenoh.Sample) -> bool:
+        """The scout's frame of a plain sensor: taken in when this member has a role for it
+        and no subscription of its own (it had one before it became the scout)."""
+        if self._intake is None or sensor in self._subs:
+            return False
+        vehicle, name = sensor.split("/")
+        if self.membership.role(self._stream_of(vehicle, name)) is Role.NONE:
+            return False
+        self._intake(sample)
+        return True
 
     def changed(self) -> None:
         """The membership changed: roles, hence the wanted sensors, may have."""
@@ -69,7 +229,9 @@ class Subscriptions:
     def settle(self, timeout: float) -> bool:
         """Wait until the subscriptions match the roles (at start, before the token)."""
         self.changed()
-        return self._idle.wait(timeout)
+        done = self._idle.wait(timeout)
+        self._started = time.monotonic()
+        return done
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -80,49 +242,191 @@ class Subscriptions:
         with self._lock:
             tokens = self._tokens.setdefault(sensor, set())
             if sample.kind == zenoh.SampleKind.PUT:
+                back = self._adv_lost.pop(sensor, None) is not None
+                if not back and sensor not in self._known and self._started is not None:
+                    self._new[sensor] = time.monotonic()
+                self._known.add(sensor)
                 tokens.add(key)
             else:
                 tokens.discard(key)
                 if not tokens:
                     del self._tokens[sensor]
+                    self._adv_lost[sensor] = time.monotonic()
         self.changed()
 
-    def _wanted(self) -> set[str]:
+    def _on_plain_token(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        names = self.keys.service_sensor_of(key)
+        if names is None:
+            return
+        sensor = f"{names[0]}/{names[1]}"
         with self._lock:
-            published = list(self._tokens)
+            tokens = self._plain.setdefault(sensor, set())
+            if sample.kind == zenoh.SampleKind.PUT:
+                tokens.add(key)
+                self._plain_lost.pop(sensor, None)
+            else:
+                tokens.discard(key)
+                if not tokens:
+                    del self._plain[sensor]
+                    self._plain_lost[sensor] = time.monotonic()
+        self.changed()
+
+    def _scouts_of(self, sensor: str) -> list[str]:
+        """The members whose plain token names ``sensor`` (the scouts that kept its frames)."""
+        with self._lock:
+            keys = list(self._plain.get(sensor, ()))
+        head = f"{self.keys.prefix}/{SERVICE_CHUNK}/"
+        return sorted({k[len(head) :].split("/", 1)[0] for k in keys})
+
+    def _published(self) -> tuple[set[str], set[str]]:
+        """(sensors with a vehicle's token, sensors found by a scout): those published."""
+        now = time.monotonic()
+        with self._lock:
+            for lost in (self._adv_lost, self._plain_lost):
+                for sensor in [s for s, t in lost.items() if now - t > GRACE_S]:
+                    del lost[sensor]
+            tokened = set(self._tokens) | set(self._adv_lost)
+            plain = (set(self._plain) | set(self._plain_lost)) - tokened
+        return tokened, plain
+
+    def _wanted(self) -> set[str]:
+        tokened, plain = self._published()
         return {
             s
-            for s in published
+            for s in tokened | plain
             if self.membership.role(self._stream_of(*s.split("/"))) is not Role.NONE
         }
 
     def _run(self) -> None:
+        due: float | None = None
         while not self._stop.is_set():
-            self._wake.wait(0.5)
+            self._wake.wait(0.5 if due is None else min(0.5, due))
             self._wake.clear()
             if self._stop.is_set():
                 break
             try:
-                self._reconcile()
+                due = self._reconcile()
             except zenoh.ZError as e:
                 log.warning("subscriptions_failed", error=str(e))
             if not self._wake.is_set():
                 self._idle.set()
 
-    def _reconcile(self) -> None:
+    def _reconcile(self) -> float | None:
+        due = None
+        scouting = was_scouting = False
+        if self.scout is not None:
+            scouting = min(self.membership.members) == self.membership.me
+            was_scouting = self.scout.active
+            if scouting:
+                self.scout.set_active(True)
+                due = self.scout.reconcile()
+        tokened, plain = self._published()
+        if not scouting and (plain - tokened) & self._wanted() - set(self._subs):
+            # New plain sensors: their vehicle's others may be on their way (one batch).
+            time.sleep(GATHER_S)
+            tokened, _ = self._published()
         wanted = self._wanted()
-        for sensor in [s for s in self._subs if s not in wanted]:
+        # A plain sensor whose vehicle now holds a token is subscribed again, advanced.
+        changed = {s for s in self._plain_subs if s in tokened}
+        for sensor in [s for s in self._subs if s not in wanted or s in changed]:
             undeclare(*self._subs.pop(sensor))
+            self._plain_subs.discard(sensor)
+        plain_batch: list[tuple[str, _Held]] = []
         for sensor in sorted(wanted - set(self._subs)):
+            if sensor in tokened:
+                self._subs[sensor] = self._advanced(sensor)
+            elif not scouting:  # the scout takes its plain sensors in directly
+                sub, held = self._plain_subscriber(sensor)
+                self._subs[sensor] = (sub,)
+                self._plain_subs.add(sensor)
+                plain_batch.append((sensor, held))
+        taken: dict[str, list[bytes]] = {}
+        if self.scout is not None and was_scouting and not scouting:
+            taken = self.scout.set_active(False)  # after its sensors' own subscriptions
+        if plain_batch:
+            self._release_plain(plain_batch, taken)
+        self._reconcile_tracks({self._stream_of(*s.split("/")) for s in wanted})
+        return due
+
+    def _advanced(self, sensor: str) -> tuple[Any, ...]:
+        """A sensor its vehicle started publishing after this member started: nobody heard
+        its frames before this subscription (a vehicle may start on the first subscriber it
+        matches, the scout's), so its whole cache comes first; any other: its last
+        ``history_frames`` (the custody machine skips what a state already holds)."""
+        vehicle, name = sensor.split("/")
+        with self._lock:
+            since = self._new.pop(sensor, None)
+        fresh = since is not None and time.monotonic() - since < NEW_SENSOR_S
+        sub = ext.declare_advanced_subscriber(
+            self.session,
+            self.keys.detections(vehicle, name),
+            self._handler(),
+            history=ext.HistoryConfig(
+                detect_late_publishers=True, max_samples=None if fresh else self._history
+            ),
+            recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
+        )
+        return (sub.sample_miss_listener(self._on_miss), sub)
+
+    def _plain_subscriber(self, sensor: str) -> tuple[Any, _Held]:
+        """Its frames wait (``release``) until the scouts' copies of earlier ones are in."""
+        intake = self._intake
+        assert intake is not None
+        vehicle, name = sensor.split("/")
+        held = _Held(intake)
+        sub = self.session.declare_subscriber(
+            self.keys.detections(vehicle, name), intake.handler(held)
+        )
+        return sub, held
+
+    def _release_plain(self, batch: list[tuple[str, _Held]], taken: dict[str, list[bytes]]) -> None:
+        """Subscribed first, then the scouts asked: every frame is in one of the two (a
+        frame in both goes on once). A sensor this member took in itself as the scout until
+        now (``taken``: its last frames) skips what it took in twice and asks nobody."""
+        assert self._intake is not None
+        for sensor, held in batch:
+            if sensor in taken:
+                skip_taken(held, taken[sensor])
+        start = time.monotonic()
+        fetched: dict[str, list[tuple[int, bytes]]] = {s: [] for s, _ in batch if s in taken}
+        pending = {s: h for s, h in batch if s not in taken}
+        while pending:
+            now = time.monotonic()
+            for sensor, held in list(pending.items()):
+                earlier = fetch_plain(self.session, self.keys, self._scouts_of(sensor), sensor)
+                if met(held, earlier, now - start):
+                    fetched[sensor] = earlier
+                    del pending[sensor]
+                elif now - start > VERIFY_S:
+                    fetched[sensor] = earlier
+                    del pending[sensor]
+                    log.warning("plain_sensor_unverified", sensor=sensor, waited_s=VERIFY_S)
+            if pending:
+                time.sleep(RETRY_S)
+        gates = []
+        for sensor, held in batch:
             vehicle, name = sensor.split("/")
-            sub = ext.declare_advanced_subscriber(
-                self.session,
-                self.keys.detections(vehicle, name),
-                self._handler(),
-                history=ext.HistoryConfig(detect_late_publishers=True, max_samples=self._history),
-                recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
+            gates.append((held, self.keys.detections(vehicle, name), fetched[sensor]))
+        extras = release(gates, self._intake.inject)
+        for (sensor, _), extra in zip(batch, extras, strict=True):
+            vehicle, name = sensor.split("/")
+            log.info("plain_sensor_subscribed", vehicle=vehicle, sensor=name, from_scout=extra)
+
+    def _reconcile_tracks(self, streams: set[str]) -> None:
+        if self._tracks is None:
+            return
+        for stream in [s for s in self._track_subs if s not in streams]:
+            undeclare(self._track_subs.pop(stream))
+        for stream in sorted(streams - set(self._track_subs)):
+            vehicle, name = stream.split("/")
+            if name == VEHICLE_STREAM:
+                key, handler = self.keys.vehicle_tracks(vehicle), self._tracks.vehicle
+            else:
+                key, handler = self.keys.tracks(vehicle, name), self._tracks.sensor
+            self._track_subs[stream] = self.session.declare_subscriber(
+                key, handler, allowed_origin=zenoh.Locality.REMOTE
             )
-            self._subs[sensor] = (sub.sample_miss_listener(self._on_miss), sub)
 
     def close(self) -> None:
         """Stop and undeclare everything (first thing at shutdown: no new frames)."""
@@ -130,12 +434,17 @@ class Subscriptions:
         self._wake.set()
         if self._thread.is_alive():
             self._thread.join(5)
-        if self._token_sub is not None:
-            undeclare(self._token_sub)
-            self._token_sub = None
-        for pair in self._subs.values():
-            undeclare(*pair)
+        for sub in (self._token_sub, self._plain_sub):
+            if sub is not None:
+                undeclare(sub)
+        self._token_sub = self._plain_sub = None
+        if self.scout is not None:
+            self.scout.close()
+        for entities in self._subs.values():
+            undeclare(*entities)
         self._subs.clear()
+        undeclare(*self._track_subs.values())
+        self._track_subs.clear()
 
 
-__all__ = ["Subscriptions"]
+__all__ = ["Subscriptions", "TracksHandlers"]
