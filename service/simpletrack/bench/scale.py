@@ -220,7 +220,8 @@ def run_scale(opts: ScaleOptions, progress: Callable[[str], None] = print) -> di
             found = sweep(opts.bench, ("tracker",), step, progress)
             row: dict[str, Any] = {"members": members, **found}
             for fault in FAULTS:
-                row[fault] = fault_run(members, fault, opts, tmp, progress) if members > 1 else None
+                hit = members > 1 and opts.fault_sensors > 0
+                row[fault] = fault_run(members, fault, opts, tmp, progress) if hit else None
             rows.append(row)
     one = next((r for r in rows if r["members"] == 1), None)
     base = one["capacity"]["max_sensors_passing"] if one else None
@@ -250,8 +251,9 @@ def scale_tables(doc: dict[str, Any]) -> str:
     limit = doc["options"]["p99_limit_ms"]
     lines = [
         f"capacity: most sensors at {doc['options']['rate_hz']:g} Hz with p99 < {limit:g} ms",
-        "| members | capacity | ratio to 1 | cores at max | generator cores at max | stopped |",
-        "|---|---|---|---|---|---|",
+        "| members | capacity | ratio to 1 | cores at max | server CPU per frame at max "
+        "| generator cores at max | stopped |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in doc["members"]:
         c = r["capacity"]
@@ -259,7 +261,9 @@ def scale_tables(doc: dict[str, Any]) -> str:
         gen = at_max["generator"] if at_max and "generator" in at_max else None
         lines.append(
             f"| {r['members']} | {_cell(c['max_sensors_passing'])} | {_cell(r['ratio_to_one'])}"
-            f" | {_cell(c['server_cores_at_max'])} | {_generator_cell(gen)} | {r['stopped']} |"
+            f" | {_cell(c['server_cores_at_max'])}"
+            f" | {_cell(at_max and at_max.get('server_cpu_ms_per_frame'), ' ms')}"
+            f" | {_generator_cell(gen)} | {r['stopped']} |"
         )
     limited = [
         f"{r['members']} member{'s' if r['members'] > 1 else ''}, {s['sensors']} sensors: "

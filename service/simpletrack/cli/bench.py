@@ -349,7 +349,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--fault-sensors",
         type=int,
         default=10,
-        help="sensors streaming during the fault runs (default 10)",
+        help="sensors streaming during the fault runs (default 10; 0: no fault runs)",
     )
     _add_source_args(scale)
     scale.add_argument(
@@ -772,8 +772,8 @@ def run_scale(args: argparse.Namespace) -> int:
     _positive(args.duration, "--duration", 3600)
     scenes = _check_load(args)
     processes, cpus = _generator(args)
-    if not (1 <= args.fault_sensors <= 1000):
-        raise UserError(f"--fault-sensors {args.fault_sensors} must be in 1..1000")
+    if not (0 <= args.fault_sensors <= 1000):
+        raise UserError(f"--fault-sensors {args.fault_sensors} must be in 0..1000 (0: no faults)")
     _out_paths(argparse.Namespace(json=None, plot_dir=args.out))
     bench_opts = ServiceBenchOptions(
         sensors=sensors,
