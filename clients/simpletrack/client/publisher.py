@@ -79,6 +79,9 @@ DEFAULT_CACHE_FRAMES = 100  # 10 s of a 10 Hz sensor
 # Lets a subscriber notice the last frames it missed even when the vehicle stops publishing;
 # one tiny message per sensor per period.
 DEFAULT_HEARTBEAT_S = 0.5
+# wait_for_service's margin past the first match: a group's owner subscribes on seeing this
+# publisher's token, a few milliseconds after another subscriber (its scout) may match.
+SETTLE_S = 0.25
 
 
 @dataclass(frozen=True, slots=True)
@@ -369,13 +372,17 @@ class DetectionPublisher:
                 self._held.clear()
 
     def wait_for_service(self, timeout: float) -> bool:
-        """True once some subscriber matches this sensor's detections key. Any subscriber
-        counts: a recorder (``simpletrack record``) or ``simpletrack view --detections``
-        already listening makes this true before the service is; start them after the
-        service answers (the demo does), or ask the service's status queryable."""
+        """True once some subscriber matches this sensor's detections key, and SETTLE_S more
+        have passed. Any subscriber counts: a recorder (``simpletrack record``), ``simpletrack
+        view --detections`` or a group's scout (docs/SCALE.md) already listening makes this
+        true before the sensor's owner subscribes; the owner subscribes on seeing this
+        publisher's token, within milliseconds, and SETTLE_S covers that (its history query
+        could otherwise race the first frames). Start recorders after the service answers
+        (the demo does), or ask the service's status queryable."""
         deadline = time.monotonic() + timeout
         while True:
             if self.delivering:
+                time.sleep(SETTLE_S)
                 return True
             if time.monotonic() >= deadline:
                 return False

@@ -264,7 +264,6 @@ class Service:
                 stream_of=self.streams.stream,
                 tracks=TracksHandlers(self._on_tracks, self._on_vehicle_tracks),
                 intake=intake,
-                deliver=misses,
                 on_lost=lambda v, n, k: misses.announce(
                     v, n, k, "of a plain publisher's first burst, past what the scout keeps"
                 ),

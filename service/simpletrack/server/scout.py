@@ -35,7 +35,6 @@ log = get_logger("group")
 # subscribes within milliseconds of the token, but a vehicle's first burst can be long);
 # frames pushed out of it unasked are announced as missed.
 FIRST_BYTES = 8 << 20
-ADVANCED_BYTES = 512 << 10  # of an advanced publisher's new sensor (its cache has the rest)
 TAKEN_BYTES = 1 << 20  # of a sensor this member takes in itself: only a standby may ask
 ALL_BYTES = 256 << 20  # of every plain sensor together; past it each keeps its last frame
 GATHER_S = 0.03  # a plain sensor is announced this long after its first frame
@@ -52,7 +51,6 @@ class Kept:
     nbytes: int = 0
     asked: float | None = None  # the first question (monotonic)
     last_only: bool = False  # asked long enough ago: the last frame is all a later asker gets
-    advanced: bool = False  # an advanced publisher's: kept a moment, never announced
     taken: bool = False  # this member took its frames in itself (it owns or stands by for it)
     lost: int = 0  # pushed out before anyone asked, not announced yet
 
@@ -63,7 +61,7 @@ class Kept:
         self.nbytes += len(payload)
         while len(self.frames) > 1 and (self.last_only or self.nbytes > cap):
             self.nbytes -= len(self.frames.popleft()[1])
-            if self.asked is None and not self.taken and not self.advanced:
+            if self.asked is None and not self.taken:
                 self.lost += 1
         return self.nbytes - before
 
@@ -75,7 +73,7 @@ class Kept:
             self.last_only = True
             while len(self.frames) > 1:
                 self.nbytes -= len(self.frames.popleft()[1])
-                if unasked and not self.taken and not self.advanced:
+                if unasked and not self.taken:
                     self.lost += 1
 
 
@@ -96,7 +94,6 @@ class Scout:
         self._on_lost = on_lost
         self._lock = threading.Lock()
         self._frames: dict[str, Kept] = {}  # plain sensor -> its frames kept
-        self._settled: set[str] = set()  # advanced publishers' sensors past their first frames
         self._nbytes = 0  # kept of all of them
         self._heard: dict[str, float] = {}  # plain sensor -> when last heard (monotonic)
         self._tokens: dict[str, Any] = {}  # plain sensor -> its token, declared here
@@ -149,33 +146,23 @@ class Scout:
         if names is None:
             return
         sensor = f"{names[0]}/{names[1]}"
-        # A vehicle's own token names it, or will: an advanced publisher's samples carry
-        # their source (sequence numbers), a plain put's none. Its owner subscribes by the
-        # token; the scout keeps its first frames only, for a vehicle that started on the
-        # scout's match before its owner's history query could reach its cache.
-        advanced = sample.source_info is not None or self._tokened(sensor)
-        if advanced and sensor in self._settled:
+        if self._tokened(sensor) or sample.source_info is not None:
+            # A vehicle's own token names it, or will: an advanced publisher's samples carry
+            # their source (sequence numbers), a plain put's none. Its owner subscribes by
+            # the token and takes the vehicle's cache of what came before.
             return
         payload = sample.payload.to_bytes()
         # A plain sensor this member owns or stands by for is taken in here, as a wide
         # member does: no subscription of its own, no delay, the fleet's order kept.
-        taken = not advanced and self._direct(sensor, sample)
+        taken = self._direct(sensor, sample)
         now = time.monotonic()
         with self._lock:
             kept = self._frames.get(sensor)
-            fresh = kept is None and not advanced
+            fresh = kept is None
             if kept is None:
-                kept = self._frames[sensor] = Kept(now, advanced=advanced)
+                kept = self._frames[sensor] = Kept(now)
             kept.taken = taken
-            cap = (
-                0
-                if self._nbytes > ALL_BYTES
-                else ADVANCED_BYTES
-                if advanced
-                else TAKEN_BYTES
-                if taken
-                else FIRST_BYTES
-            )
+            cap = 0 if self._nbytes > ALL_BYTES else TAKEN_BYTES if taken else FIRST_BYTES
             self._nbytes += kept.add(time.time_ns(), payload, cap)
             self._heard[sensor] = now
         if fresh:
@@ -209,18 +196,14 @@ class Scout:
             gone = [self._tokens.pop(s) for s in silent if s in self._tokens]
             # A vehicle's sensors start together: announced together, their first frames go
             # to their owner in one batch, in the order heard.
-            for sensor in [s for s, k in self._frames.items() if k.advanced and k.last_only]:
-                self._nbytes -= self._frames.pop(sensor).nbytes
-                self._settled.add(sensor)
-            plain = [(s, k) for s, k in self._frames.items() if not k.advanced]
             new = [
                 s
-                for s, kept in plain
+                for s, kept in self._frames.items()
                 if s not in self._tokens and now - kept.first_heard >= GATHER_S
             ]
             waiting = [
                 GATHER_S - (now - kept.first_heard)
-                for s, kept in plain
+                for s, kept in self._frames.items()
                 if s not in self._tokens and now - kept.first_heard < GATHER_S
             ]
             lost: dict[str, int] = {}

@@ -152,7 +152,6 @@ class Subscriptions:
         *,
         tracks: TracksHandlers | None = None,
         intake: Intake | None = None,
-        deliver: Callable[[zenoh.Sample], None] | None = None,
         on_lost: Callable[[str, str, int], None] | None = None,
         idle_s: float = 60.0,
     ) -> None:
@@ -160,7 +159,6 @@ class Subscriptions:
         self._handler, self._on_miss, self._history = handler, on_miss, history_frames
         self._stream_of = stream_of  # a fused sensor's role is its vehicle's
         self._tracks, self._intake = tracks, intake  # intake: plain sensors heard (a scout)
-        self._deliver = deliver  # where an advanced subscriber's samples go (misses, intake)
         self._tokens: dict[str, set[str]] = {}  # vehicle/sensor -> its publishers' tokens
         self._plain: dict[str, set[str]] = {}  # vehicle/sensor -> scouts' plain tokens
         self._adv_lost: dict[str, float] = {}  # sensor -> when its vehicle's last token went
@@ -337,9 +335,7 @@ class Subscriptions:
         plain_batch: list[tuple[str, _Held]] = []
         for sensor in sorted(wanted - set(self._subs)):
             if sensor in tokened:
-                self._subs[sensor], adv_held = self._advanced(sensor)
-                if adv_held is not None:
-                    plain_batch.append((sensor, adv_held))
+                self._subs[sensor] = self._advanced(sensor)
             elif not scouting:  # the scout takes its plain sensors in directly
                 sub, held = self._plain_subscriber(sensor)
                 self._subs[sensor] = (sub,)
@@ -353,7 +349,7 @@ class Subscriptions:
         self._reconcile_tracks({self._stream_of(*s.split("/")) for s in wanted})
         return due
 
-    def _advanced(self, sensor: str) -> tuple[tuple[Any, ...], _Held | None]:
+    def _advanced(self, sensor: str) -> tuple[Any, ...]:
         """A sensor its vehicle started publishing after this member started: nobody heard
         its frames before this subscription (a vehicle may start on the first subscriber it
         matches, the scout's), so its whole cache comes first; any other: its last
@@ -362,23 +358,16 @@ class Subscriptions:
         with self._lock:
             since = self._new.pop(sensor, None)
         fresh = since is not None and time.monotonic() - since < NEW_SENSOR_S
-        # A new sensor's frames wait, as a plain one's, for the scout's copies of its first
-        # ones: the history query may go out before this member can reach the cache.
-        held = None
-        handler = self._handler()
-        if fresh and self._deliver is not None and self._intake is not None:
-            held = _Held(self._deliver)
-            handler = self._intake.handler(held)
         sub = ext.declare_advanced_subscriber(
             self.session,
             self.keys.detections(vehicle, name),
-            handler,
+            self._handler(),
             history=ext.HistoryConfig(
                 detect_late_publishers=True, max_samples=None if fresh else self._history
             ),
             recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
         )
-        return (sub.sample_miss_listener(self._on_miss), sub), held
+        return (sub.sample_miss_listener(self._on_miss), sub)
 
     def _plain_subscriber(self, sensor: str) -> tuple[Any, _Held]:
         """Its frames wait (``release``) until the scouts' copies of earlier ones are in."""
@@ -405,8 +394,7 @@ class Subscriptions:
         while pending:
             now = time.monotonic()
             for sensor, held in list(pending.items()):
-                scouts = self._scouts_of(sensor) or [min(self.membership.members)]
-                earlier = fetch_plain(self.session, self.keys, scouts, sensor)
+                earlier = fetch_plain(self.session, self.keys, self._scouts_of(sensor), sensor)
                 if met(held, earlier, now - start):
                     fetched[sensor] = earlier
                     del pending[sensor]
