@@ -467,15 +467,15 @@ class Intake:
         key = str(sample.key_expr)
         if self._wanted is not None and not self._wanted(key):
             return  # before any copy: the cheapest a frame of another member can cost
-        item = Inbound(key, sample.payload.to_bytes(), time.time_ns(), time.perf_counter())
-        self._on_received(key)
-        self._enqueue(self._route(key), item)
+        self._take(key, sample.payload.to_bytes())
 
     def inject(self, key: str, payload: bytes) -> None:
         """A frame heard on the detections key by other means (a plain sensor's frames kept
         by the group's scout), received now."""
-        if self._wanted is not None and not self._wanted(key):
-            return
+        if self._wanted is None or self._wanted(key):
+            self._take(key, payload)
+
+    def _take(self, key: str, payload: bytes) -> None:
         self._on_received(key)
         self._enqueue(self._route(key), Inbound(key, payload, time.time_ns(), time.perf_counter()))
 

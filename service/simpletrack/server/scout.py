@@ -47,6 +47,7 @@ class Kept:
     """A plain sensor's frames kept by the scout, each with when it was heard (wall ns)."""
 
     first_heard: float  # monotonic
+    last_heard: float  # monotonic: silent idle_s, the sensor is forgotten
     frames: deque[tuple[int, bytes]] = field(default_factory=deque)
     nbytes: int = 0
     asked: float | None = None  # the first question (monotonic)
@@ -95,7 +96,6 @@ class Scout:
         self._lock = threading.Lock()
         self._frames: dict[str, Kept] = {}  # plain sensor -> its frames kept
         self._nbytes = 0  # kept of all of them
-        self._heard: dict[str, float] = {}  # plain sensor -> when last heard (monotonic)
         self._tokens: dict[str, Any] = {}  # plain sensor -> its token, declared here
         self._entities: tuple[Any, ...] = ()  # subscriber, queryable while scouting
 
@@ -133,7 +133,6 @@ class Scout:
             kept = {s: [p for _, p in k.frames] for s, k in self._frames.items()}
             self._tokens.clear()
             self._frames.clear()
-            self._heard.clear()
             self._nbytes = 0
         undeclare(*tokens)
         log.info("scout_stopped", instance=self.instance)
@@ -160,11 +159,10 @@ class Scout:
             kept = self._frames.get(sensor)
             fresh = kept is None
             if kept is None:
-                kept = self._frames[sensor] = Kept(now)
-            kept.taken = taken
+                kept = self._frames[sensor] = Kept(now, now)
+            kept.taken, kept.last_heard = taken, now
             cap = 0 if self._nbytes > ALL_BYTES else TAKEN_BYTES if taken else FIRST_BYTES
             self._nbytes += kept.add(time.time_ns(), payload, cap)
-            self._heard[sensor] = now
         if fresh:
             self._wake()
 
@@ -187,12 +185,9 @@ class Scout:
         seconds until the next one is due, if one waits."""
         now = time.monotonic() if now is None else now
         with self._lock:
-            silent = [s for s, t in self._heard.items() if now - t > self._idle_s]
+            silent = [s for s, k in self._frames.items() if now - k.last_heard > self._idle_s]
             for sensor in silent:
-                del self._heard[sensor]
-                gone_kept = self._frames.pop(sensor, None)
-                if gone_kept is not None:
-                    self._nbytes -= gone_kept.nbytes
+                self._nbytes -= self._frames.pop(sensor).nbytes
             gone = [self._tokens.pop(s) for s in silent if s in self._tokens]
             # A vehicle's sensors start together: announced together, their first frames go
             # to their owner in one batch, in the order heard.

@@ -290,11 +290,11 @@ class Subscriptions:
             plain = (set(self._plain) | set(self._plain_lost)) - tokened
         return tokened, plain
 
-    def _wanted(self) -> set[str]:
-        tokened, plain = self._published()
+    def _wanted(self, published: set[str]) -> set[str]:
+        """Of the sensors published, those this member owns or stands by for."""
         return {
             s
-            for s in tokened | plain
+            for s in published
             if self.membership.role(self._stream_of(*s.split("/"))) is not Role.NONE
         }
 
@@ -322,11 +322,11 @@ class Subscriptions:
                 self.scout.set_active(True)
                 due = self.scout.reconcile()
         tokened, plain = self._published()
-        if not scouting and (plain - tokened) & self._wanted() - set(self._subs):
+        if not scouting and self._wanted(plain) - set(self._subs):
             # New plain sensors: their vehicle's others may be on their way (one batch).
             time.sleep(GATHER_S)
-            tokened, _ = self._published()
-        wanted = self._wanted()
+            tokened, plain = self._published()
+        wanted = self._wanted(tokened | plain)
         # A plain sensor whose vehicle now holds a token is subscribed again, advanced.
         changed = {s for s in self._plain_subs if s in tokened}
         for sensor in [s for s in self._subs if s not in wanted or s in changed]:
