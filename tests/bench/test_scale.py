@@ -45,6 +45,10 @@ def test_fault_figures_time_the_victim_s_sensors_and_count_frames_around_the_fau
     f = fault_figures(answers, sent, FAULT, "m1")
     assert f["sensors_served_by_victim"] == 3
     assert f["max_ms"] == 50.0 and f["median_ms"] == 45.0
+    # Their first frame put after the fault (seq 2, put 20 ms after it): answered 20 ms
+    # after its put for sensor 0 (by m0 at +40), 40 ms for sensor 3 (at +60); sensor 2's
+    # never was.
+    assert f["first_after_max_ms"] == 40.0 and f["first_after_median_ms"] == 30.0
     assert f["not_recovered"] == 1
     # Frames put from 1 s before the fault on: seq 1 and 2 of each sensor.
     assert f["window_frames"] == 8
@@ -53,6 +57,26 @@ def test_fault_figures_time_the_victim_s_sensors_and_count_frames_around_the_fau
     assert f["multiple_answers"] == 1  # sensor 2, seq 1
     # Before the window: seq 0 of each sensor, answered 2, 1, 1 and 1 times.
     assert f["answers_per_frame_before"] == pytest.approx(5 / 4, abs=0.01)
+
+
+def test_the_survivors_own_sensors_are_timed_before_and_after_the_fault() -> None:
+    # Sensors 0 and 1 stay with m0 (bystanders), sensor 2 moves from the victim m1.
+    sent = [[FAULT - 4000 * MS, FAULT - 200 * MS, FAULT + 100 * MS, FAULT + 3500 * MS]] * 3
+    answers = [
+        (0, 0, "m0", FAULT - 3000 * MS),  # put 4 s before: outside the 3 s span
+        (0, 1, "m0", FAULT - 190 * MS),  # 10 ms
+        (0, 2, "m0", FAULT + 400 * MS),  # 300 ms: held back while m0 took sensor 2
+        (0, 2, "m0", FAULT + 900 * MS),  # a repeat: the first answer times it
+        (0, 3, "m0", FAULT + 3510 * MS),  # put 3.5 s after: outside the span
+        (1, 1, "m0", FAULT - 180 * MS),  # 20 ms; its seq 2 is never answered
+        (2, 1, "m1", FAULT - 150 * MS),
+        (2, 2, "m0", FAULT + 50 * MS),  # a moved sensor: not a bystander
+    ]
+    f = fault_figures(answers, sent, FAULT, "m1")
+    assert f["bystander_sensors"] == 2
+    assert f["bystander_p99_ms_before"] == pytest.approx(19.9, abs=0.05)
+    assert f["bystander_p99_ms_after"] == 300.0 and f["bystander_max_ms_after"] == 300.0
+    assert f["bystander_unanswered_after"] == 1
 
 
 def test_warm_up_frames_and_unsent_frames_are_not_counted() -> None:

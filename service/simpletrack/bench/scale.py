@@ -11,7 +11,8 @@ each with a fresh group and ``fault_sensors`` sensors streaming:
 For each sensor whose last track frame before the fault came from that member
 (``TrackFrame.instance``), the time from the fault to its first track frame from another
 member; and, over the frames put from 1 s before the fault to the end, how many got no track
-frame and how many got more than one.
+frame and how many got more than one; the survivors' own sensors' p99 just before and just
+after the fault; each member's resident memory; the load generator's longest put lag.
 
 The members form one group (docs/SCALE.md): each sensor is tracked by one member, so before a
 fault every frame gets one answer and capacity grows with M as far as the machine's cores do;
@@ -33,6 +34,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from simpletrack.bench.generators import Generators, generator_summary, merge_results
 from simpletrack.bench.report import generator_line
 from simpletrack.bench.service import (
@@ -44,11 +47,15 @@ from simpletrack.bench.service import (
     sweep,
     wait_tracker,
 )
+from simpletrack.session import BLOCK_WAIT_BEFORE_CLOSE_US
 from simpletrack.spawn import free_port
 
 FAULTS = {"failover": signal.SIGKILL, "handoff": signal.SIGTERM}
 BEFORE_FAULT_S = 1.0  # frames put this long before the fault may still be in the victim's queue
 FAULT_DRAIN_S = 3.0
+# The survivors' own sensors are timed over frames put this long after the fault (when the
+# moved sensors' subscriptions, cache fetches and restores land on them) and as long before.
+STALL_S = 3.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,7 +123,8 @@ def fault_figures(
     gaps_ms: list[float] = []
     not_recovered = 0
     served = 0
-    for events in by_sensor.values():
+    first_ms: list[float] = []  # each moved sensor's first frame put after the fault
+    for sensor, events in by_sensor.items():
         events.sort()
         before = [inst for t, inst in events if t < fault_ns]
         if not before or before[-1] != victim:
@@ -127,6 +135,11 @@ def fault_figures(
             not_recovered += 1
         else:
             gaps_ms.append((after - fault_ns) / 1e6)
+        row = sent_ns[sensor] if sensor < len(sent_ns) else []
+        k = next((k for k, t in enumerate(row) if k >= warm_ticks and t >= fault_ns), None)
+        heard = by_frame.get((sensor, k), []) if k is not None else []
+        if k is not None and heard:
+            first_ms.append((min(heard)[0] - row[k]) / 1e6)
     start = fault_ns - int(BEFORE_FAULT_S * 1e9)
     window = [
         (i, k)
@@ -143,9 +156,14 @@ def fault_figures(
     return {
         "victim": victim,
         "sensors_served_by_victim": served,
+        **_bystanders(by_frame, sent_ns, fault_ns, victim, warm_ticks),
         "max_ms": round(max(gaps_ms), 1) if gaps_ms else None,
         "median_ms": round(statistics.median(gaps_ms), 1) if gaps_ms else None,
         "not_recovered": not_recovered,
+        # Independent of the frame period (the time to another member's tracks includes the
+        # wait for each sensor's next frame): how late the first frame after the fault was.
+        "first_after_max_ms": round(max(first_ms), 1) if first_ms else None,
+        "first_after_median_ms": round(statistics.median(first_ms), 1) if first_ms else None,
         "window_frames": len(window),
         "zero_answers": sum(1 for f in window if per_frame[f] == 0),
         "republished": sum(1 for f in window if _republished(by_frame.get(f, []), victim)),
@@ -154,6 +172,59 @@ def fault_figures(
         ),
         "answers_per_frame_before": round(sum(earlier) / len(earlier), 2) if earlier else None,
     }
+
+
+def _bystanders(
+    by_frame: dict[tuple[int, int], list[tuple[int, str]]],
+    sent_ns: Sequence[Sequence[int]],
+    fault_ns: int,
+    victim: str,
+    warm_ticks: int,
+) -> dict[str, Any]:
+    """Latency of the sensors a survivor served before the fault (not moved by it), over the
+    frames put in the STALL_S before it and the STALL_S after it: whether taking the
+    victim's sensors over held the survivors' own sensors back."""
+    last: dict[int, tuple[int, str]] = {}
+    for (sensor, _), events in by_frame.items():
+        for t, inst in events:
+            if t < fault_ns and t > last.get(sensor, (-1, ""))[0]:
+                last[sensor] = (t, inst)
+    kept = {sensor for sensor, (_, inst) in last.items() if inst != victim}
+    span = int(STALL_S * 1e9)
+    before: list[float] = []
+    after: list[float] = []
+    missing = 0
+    for sensor in sorted(kept):
+        for k, t in enumerate(sent_ns[sensor]):
+            if k < warm_ticks or t <= 0 or not fault_ns - span <= t < fault_ns + span:
+                continue
+            events = by_frame.get((sensor, k), [])
+            if not events:
+                missing += t >= fault_ns
+                continue
+            (before if t < fault_ns else after).append((min(events)[0] - t) / 1e6)
+
+    def p99(xs: list[float]) -> float | None:
+        return round(float(np.percentile(xs, 99)), 1) if xs else None
+
+    return {
+        "bystander_sensors": len(kept),
+        "bystander_p99_ms_before": p99(before),
+        "bystander_p99_ms_after": p99(after),
+        "bystander_max_ms_after": round(max(after), 1) if after else None,
+        "bystander_unanswered_after": missing,
+    }
+
+
+def rss_mb(pid: int) -> float | None:
+    """The process's resident memory now (None once it is gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return round(int(line.split()[1]) / 1024, 1)
+    except OSError:
+        return None
+    return None
 
 
 def fault_run(
@@ -174,9 +245,13 @@ def fault_run(
             time.sleep(max(0.0, (at - time.monotonic_ns()) / 1e9))
             # The generators' clock: CLOCK_MONOTONIC, one per machine, so every process's
             # receipt times compare with it.
+            rss_before = [rss_mb(s.proc.pid) for s in servers]
             fault_ns = time.monotonic_ns()
             os.kill(victim.proc.pid, FAULTS[fault])
-            gens.expect_all("end", bench.seconds + 60.0)
+            # A vehicle's put to a member that died under it may block for the whole of its
+            # session's wait_before_close: the run waits that out and reports it (put lag).
+            gens.expect_all("end", bench.seconds + BLOCK_WAIT_BEFORE_CLOSE_US / 1e6 + 60.0)
+            rss_after = [rss_mb(s.proc.pid) for s in servers[:-1]]
             result = merge_results(gens.expect_all("result", FAULT_DRAIN_S + 60.0))
     out = {
         "fault": fault,
@@ -186,6 +261,10 @@ def fault_run(
         **fault_figures(
             result["answers"], result["sent_ns"], fault_ns, victim.instance, spec.warm_ticks
         ),
+        # Resident memory of each member just before the fault, and of the survivors (which
+        # now hold the victim's sensors too) at the end of the window.
+        "rss_mb_before": rss_before,
+        "rss_mb_after": rss_after,
         "generator": generator_summary(
             result["generators"], result["put_lateness_s"], bench.generator_cpus
         ),
@@ -197,11 +276,22 @@ def fault_run(
 def fault_line(f: dict[str, Any]) -> str:
     return (
         f"{f['sensors_served_by_victim']} sensors last served by {f['victim']}: "
-        f"max {f['max_ms']} ms, median {f['median_ms']} ms to another member's tracks, "
+        f"max {f['max_ms']} ms, median {f['median_ms']} ms to another member's tracks "
+        f"(their first frame after it answered {f.get('first_after_max_ms')} ms after its put "
+        f"at most, median {f.get('first_after_median_ms')} ms), "
         f"{f['not_recovered']} never; of {f['window_frames']} frames around the fault "
         f"{f['zero_answers']} unanswered, {f.get('republished', 0)} of the victim's last "
-        f"published again, {f['multiple_answers']} otherwise answered more than once"
+        f"published again, {f['multiple_answers']} otherwise answered more than once; "
+        f"the other {f['bystander_sensors']} sensors' p99 {f['bystander_p99_ms_before']} ms "
+        f"before, {f['bystander_p99_ms_after']} ms after (max {f['bystander_max_ms_after']}, "
+        f"{f['bystander_unanswered_after']} unanswered); members' memory "
+        f"{_mb(f['rss_mb_before'])} MB before, survivors {_mb(f['rss_mb_after'])} MB after; "
+        f"the load generator's longest put lag {f['generator']['lag_max_ms']} ms"
     )
+
+
+def _mb(values: Sequence[float | None]) -> str:
+    return "/".join("—" if v is None else f"{v:.0f}" for v in values)
 
 
 # ----------------------------------------------------------------------------- the run
@@ -276,10 +366,16 @@ def scale_tables(doc: dict[str, Any]) -> str:
     lines += [
         "",
         "faults: time from the fault to another member's tracks, for the sensors the hit "
-        "member served last; frames put from 1 s before the fault on",
-        "| members | fault | sensors | max | median | never | frames | unanswered | "
-        "victim's last again | other repeats | answers/frame before |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "member served last, and how long after its put their first frame after the fault "
+        "was answered; frames put from 1 s before the fault on; the other sensors' "
+        f"p99 over the frames put {STALL_S:g} s before and after the fault; each member's "
+        "resident memory before the fault, the survivors' at the end; the longest any put "
+        "of the load generator (the vehicles) waited past its time, the fault included",
+        "| members | fault | sensors | max | median | first frame after: max / median "
+        "| never | frames | unanswered | "
+        "victim's last again | other repeats | answers/frame before | others' p99 before "
+        "-> after | memory MB before -> after | longest put lag |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in doc["members"]:
         for fault in FAULTS:
@@ -289,8 +385,14 @@ def scale_tables(doc: dict[str, Any]) -> str:
             lines.append(
                 f"| {r['members']} | {fault} ({f['signal']}) | {f['sensors_served_by_victim']}"
                 f"/{f['sensors']} | {_cell(f['max_ms'], ' ms')} | {_cell(f['median_ms'], ' ms')}"
+                f" | {_cell(f.get('first_after_max_ms'), ' ms')} / "
+                f"{_cell(f.get('first_after_median_ms'), ' ms')}"
                 f" | {f['not_recovered']} | {f['window_frames']} | {f['zero_answers']}"
                 f" | {f.get('republished', 0)} | {f['multiple_answers']}"
-                f" | {_cell(f['answers_per_frame_before'])} |"
+                f" | {_cell(f['answers_per_frame_before'])}"
+                f" | {_cell(f.get('bystander_p99_ms_before'), ' ms')} -> "
+                f"{_cell(f.get('bystander_p99_ms_after'), ' ms')}"
+                f" | {_mb(f.get('rss_mb_before', []))} -> {_mb(f.get('rss_mb_after', []))}"
+                f" | {_cell((f.get('generator') or {}).get('lag_max_ms'), ' ms')} |"
             )
     return "\n".join(lines)

@@ -79,10 +79,16 @@ what it measures (for each member count M of --instances):
   to all; a fresh group per step. Then, for M >= 2, two runs of --fault-sensors sensors for
   --duration s, one member hit half-way: failover (SIGKILL) and hand-off (SIGTERM). For the
   sensors whose last track frame before the fault came from that member (TrackFrame.instance):
-  max and median time from the fault to their first track frame from another member; over
+  max and median time from the fault to their first track frame from another member (it
+  includes the wait for each sensor's next frame: at low --rate, read also how long after
+  its put the first frame after the fault was answered); over
   the frames put from 1 s before the fault on: how many got no track frame, and how many more
   than one (a failover publishes the dead member's last frame of each moved sensor once
-  more: counted apart, "victim's last again"). The members form one group (docs/SCALE.md):
+  more: counted apart, "victim's last again"). The other sensors (served by a survivor
+  before the fault): their p99 over the frames put 3 s before and 3 s after it (did taking
+  the victim's sensors over hold them back?). Each member's resident memory just before the
+  fault, the survivors' at the end; the load generator's longest put lag (a vehicle's put to
+  a member dying under it can block). The members form one group (docs/SCALE.md):
   each sensor is tracked by one member, so before a fault every frame gets one answer
   ("answers/frame before") and capacity grows with M as far as the machine's cores do (the
   members and the load generator share them). With --subscribe owned (the default) each

@@ -338,6 +338,10 @@ class CustodyMachine(Generic[F]):
         self.fused_sensors: tuple[str, ...] = ()  # the sensors a vehicle's stream fuses
         self._beat: float | None = None
         self._members = 1  # members in the view at the last beat
+        # Streams fenced since the beat that last found none still fenced: the worker beats
+        # at every item it takes, and a walk over every held stream each time cost a frame
+        # more the more streams a member holds.
+        self._fenced: set[str] = set()
         self._resend: dict[str, bytes] = {}  # a stashed state's last message
         self.fences = 0
 
@@ -550,6 +554,10 @@ class CustodyMachine(Generic[F]):
                 if s.phase in _HELD:
                     acts.append(Stash(stream))
                     s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
+                    self._fenced.add(stream)
+            return acts
+        self._fenced = {k for k in self._fenced if self._is_fenced(k)}
+        if not self._fenced:
             return acts
         for stream, s in self._streams.items():
             if s.phase is not Phase.FENCED or s.fenced_at is None or connected_at is None:
@@ -565,6 +573,10 @@ class CustodyMachine(Generic[F]):
                 s.phase = Phase.UNHELD  # its next frame asks
         return acts
 
+    def _is_fenced(self, stream: str) -> bool:
+        s = self._streams.get(stream)
+        return s is not None and s.phase is Phase.FENCED
+
     def superseded(self, stream: str, now: float) -> list[Action[F]]:
         """Another member published the stream with a higher epoch (it took the stream over
         while this one could not see it: a partition that healed, a pause): this member's
@@ -573,6 +585,7 @@ class CustodyMachine(Generic[F]):
         if s is None or s.phase not in _HELD:
             return []
         s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
+        self._fenced.add(stream)
         return [Stash(stream)]
 
     def requeue(self, stream: str, frames: Sequence[F]) -> None:

@@ -65,6 +65,9 @@ class Membership:
         self._lock = threading.Lock()
         self._members: frozenset[str] = frozenset({me})
         self._roles: dict[str, Role] = {}
+        # Each sensor's ranking in the current view: the checkpoints and the release of
+        # unowned streams ask it for every held sensor, twice a second.
+        self._orders: dict[str, tuple[str, ...]] = {}
         self._leaving: dict[str, float] = {}  # member -> when its token went (client mode)
         self._router_back_at: float | None = None
         self._sub: zenoh.Subscriber[None] | None = None
@@ -92,7 +95,7 @@ class Membership:
         roles = self._roles
         role = roles.get(sensor)
         if role is None:
-            order = ranking(self._members, sensor)
+            order = self._order(sensor)
             if order[0] == self.me:
                 role = Role.OWNER
             elif len(order) > 1 and order[1] == self.me:
@@ -113,12 +116,21 @@ class Membership:
         return all(m == self.me or m in self._capable for m in self._members)
 
     def owner(self, sensor: str) -> str:
-        return ranking(self._members, sensor)[0] if self.enabled else self.me
+        return self._order(sensor)[0] if self.enabled else self.me
 
     def standby(self, sensor: str) -> str | None:
         """The member that would take ``sensor`` over if its owner went (None: alone)."""
-        order = ranking(self._members, sensor)
+        order = self._order(sensor)
         return order[1] if self.enabled and len(order) > 1 else None
+
+    def _order(self, sensor: str) -> tuple[str, ...]:
+        orders, members = self._orders, self._members
+        order = orders.get(sensor)
+        if order is None:
+            order = tuple(ranking(members, sensor))
+            if len(orders) < 1_000_000:  # bounded as the roles are
+                orders[sensor] = order
+        return order
 
     # ------------------------------------------------------------------ the token stream
     def start(self, session: zenoh.Session) -> None:
@@ -204,6 +216,7 @@ class Membership:
                 return
             self._members = members
             self._roles = {}
+            self._orders = {}
             self._capable -= before - members  # gone: able again only with a new token
         log.info(
             "group_changed",
