@@ -411,6 +411,7 @@ def test_the_sweep_stops_at_a_generator_limited_step() -> None:
         (["--generator-cpus", "4096"], "--generator-cpus '4096': CPU 4096 is not one"),
         (["--generator-cpus", "a-b"], "--generator-cpus 'a-b': 'a-b' is not a CPU number"),
         (["--generator-processes", "0"], "--generator-processes 0 must be in 1..64"),
+        (["--heartbeat", "0"], "--heartbeat 0 must be in 0.01..3600 seconds"),
     ],
 )
 @pytest.mark.parametrize("bench", ["service", "scale"])
@@ -421,6 +422,28 @@ def test_bad_generator_flags_are_one_line_errors(
     err = capsys.readouterr().err.strip()
     assert err.startswith("simpletrack bench: error:") and "\n" not in err, err
     assert needle in err, err
+
+
+def test_the_heartbeat_reaches_the_publishers_and_ref_only_when_given() -> None:
+    import argparse
+
+    from simpletrack.bench.service import Server, load_spec
+    from simpletrack.cli.bench import _generator_option
+
+    def flags(heartbeat: float | None) -> list[str]:
+        ns = argparse.Namespace(generator_processes=1, generator_cpus=None, heartbeat=heartbeat)
+        return _generator_option(ns)
+
+    assert flags(2.0) == ["--heartbeat", "2.0"]
+    assert flags(None) == []  # an older REF does not know the flag
+    opts = ServiceBenchOptions(
+        sensors=(3,), seconds=1.0, warmup_s=0.0, rate_hz=10.0, workers=2, queue_size=64,
+        source="synthetic", data=Path(), synthetic_boxes=4, budget_s=1e6, echo=False,
+        profile_dir=None,
+    )  # fmt: skip
+    server = Server("tracker", None, "tcp/127.0.0.1:1", None, Path())  # type: ignore[arg-type]
+    assert load_spec(3, opts, [server]).heartbeat_s == 0.5  # DetectionPublisher's default
+    assert load_spec(3, replace(opts, heartbeat_s=2.0), [server]).heartbeat_s == 2.0
 
 
 # ----------------------------------------------------------------------------- a real step

@@ -39,6 +39,7 @@ import zenoh
 from zenoh import ext
 
 from simpletrack.bench.shares import chunk_patterns, split_sensors
+from simpletrack.client.publisher import DEFAULT_HEARTBEAT_S
 from simpletrack.core.boxes import Boxes
 from simpletrack.datasets.kitti import camera_to_tracker
 from simpletrack.datasets.nuscenes import TYPE_NAMES, scene_files
@@ -74,6 +75,9 @@ class LoadSpec:
     # Advanced publishers (cache, liveliness token), as DetectionPublisher declares: what a
     # group with subscribe = "owned" finds sensors by.
     advanced: bool = False
+    # Their miss-detection heartbeat period (DetectionPublisher's heartbeat_s): each sends one
+    # this often, whatever its rate, to every member subscribed to it.
+    heartbeat_s: float = DEFAULT_HEARTBEAT_S
     # Fused vehicles instead of sensors: ``sensors`` vehicles, each a lidar (the scene's
     # frames) and a front camera (its view of them, half a period later), answered on the
     # vehicle's key (docs/SERVICE.md, "Vehicle fusion").
@@ -554,7 +558,7 @@ def run(conn: Connection, spec: LoadSpec) -> None:
                         congestion_control=block,
                         cache=ext.CacheConfig(100),
                         sample_miss_detection=ext.MissDetectionConfig(
-                            heartbeat=0.5, sporadic_heartbeat=None
+                            heartbeat=spec.heartbeat_s, sporadic_heartbeat=None
                         ),
                         publisher_detection=True,
                     )

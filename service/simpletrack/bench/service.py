@@ -43,6 +43,7 @@ from simpletrack.bench import loadgen
 from simpletrack.bench.generators import BenchError, Generators, generator_summary, merge_results
 from simpletrack.bench.report import generator_line
 from simpletrack.bench.stats import cdf_ms, summary_ms
+from simpletrack.client.publisher import DEFAULT_HEARTBEAT_S
 from simpletrack.spawn import free_port, serve_command
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -86,6 +87,7 @@ class ServiceBenchOptions:
     fused: bool = False  # vehicles of a lidar and a camera, fused (loadgen.LoadSpec.fused)
     generator_processes: int = 1  # load-generator processes, each a block of the sensors
     generator_cpus: tuple[int, ...] = ()  # the CPUs they all run on; () = not pinned
+    heartbeat_s: float = DEFAULT_HEARTBEAT_S  # the publishers' heartbeat period
 
 
 # ----------------------------------------------------------------------------- processes
@@ -382,6 +384,7 @@ def load_spec(
         data=str(opts.data),
         synthetic_boxes=opts.synthetic_boxes,
         advanced=opts.subscribe == "owned",
+        heartbeat_s=opts.heartbeat_s,
         fused=opts.fused,
     )
 

@@ -145,10 +145,10 @@ against another revision (--against REF):
   alternating, each a fresh process whose server and load generator run that side's code.
   Passed through to both sides: --sensors --seconds --warmup --rate --workers --queue-size
   --source --data --synthetic-boxes --p99-limit --budget --no-echo, and the --generator-*
-  flags when given (REF must know them); --profile and --plot-dir are refused. A round is
-  two full service benchmarks: with the defaults up to ~2 x 8 min, so the default is 2
-  rounds and a comparison is best made on a few steps (--sensors 1,10,20 --seconds 5
-  --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
+  and --heartbeat flags when given (REF must know them); --profile and --plot-dir are
+  refused. A round is two full service benchmarks: with the defaults up to ~2 x 8 min, so
+  the default is 2 rounds and a comparison is best made on a few steps (--sensors 1,10,20
+  --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
   latencies and CPU per frame, this/REF for frames/s, sensors and streams per core).
 """
 
@@ -499,6 +499,15 @@ def _add_generator_args(parser: argparse.ArgumentParser) -> None:
         "under taskset on the other CPUs (taskset -c 4-15 simpletrack bench ... "
         "--generator-cpus 0-3); default: not pinned",
     )
+    parser.add_argument(
+        "--heartbeat",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="the load generator's publishers send a miss-detection heartbeat this often "
+        "(default 0.5, DetectionPublisher's heartbeat_s), whatever their rate, to each "
+        "member subscribed to them",
+    )
 
 
 def _generator(args: argparse.Namespace) -> tuple[int, tuple[int, ...]]:
@@ -516,10 +525,22 @@ def _generator(args: argparse.Namespace) -> tuple[int, tuple[int, ...]]:
     return args.generator_processes, cpus
 
 
+def _heartbeat(args: argparse.Namespace) -> float:
+    from simpletrack.client.publisher import DEFAULT_HEARTBEAT_S
+
+    if args.heartbeat is None:
+        return DEFAULT_HEARTBEAT_S
+    if not (0.01 <= args.heartbeat <= 3600):
+        raise UserError(f"--heartbeat {args.heartbeat:g} must be in 0.01..3600 seconds")
+    return float(args.heartbeat)
+
+
 def _generator_option(args: argparse.Namespace) -> list[str]:
     """The generator flags for REF's run (--against), only where given: an older REF knows
-    neither."""
+    none of them."""
     out = []
+    if args.heartbeat is not None:
+        out += ["--heartbeat", repr(args.heartbeat)]
     if args.generator_processes != 1:
         out += ["--generator-processes", str(args.generator_processes)]
     if args.generator_cpus is not None:
@@ -683,6 +704,7 @@ def run_service(args: argparse.Namespace) -> int:
     _positive(args.seconds, "--seconds", 3600)
     scenes = _check_load(args)
     processes, cpus = _generator(args)
+    heartbeat = _heartbeat(args)
     if not (1 <= args.queue_size <= 100_000):
         raise UserError(f"--queue-size {args.queue_size} must be in 1..100000")
     if args.profile is not None:
@@ -729,6 +751,7 @@ def run_service(args: argparse.Namespace) -> int:
         fused=args.fused,
         generator_processes=processes,
         generator_cpus=cpus,
+        heartbeat_s=heartbeat,
     )
     before = machine()
     try:
@@ -779,6 +802,7 @@ def run_scale(args: argparse.Namespace) -> int:
     _positive(args.duration, "--duration", 3600)
     scenes = _check_load(args)
     processes, cpus = _generator(args)
+    heartbeat = _heartbeat(args)
     if not (0 <= args.fault_sensors <= 1000):
         raise UserError(f"--fault-sensors {args.fault_sensors} must be in 0..1000 (0: no faults)")
     _out_paths(argparse.Namespace(json=None, plot_dir=args.out))
@@ -799,6 +823,7 @@ def run_scale(args: argparse.Namespace) -> int:
         subscribe=args.subscribe,
         generator_processes=processes,
         generator_cpus=cpus,
+        heartbeat_s=heartbeat,
     )
     opts = ScaleOptions(instances, bench_opts, args.fault_sensors)
     before = machine()
