@@ -40,6 +40,9 @@ use crate::wire::{
 pub const DEFAULT_CACHE_FRAMES: usize = 100;
 /// Lets a service notice the last frames it missed even when the vehicle stops publishing.
 pub const DEFAULT_HEARTBEAT: Duration = Duration::from_millis(500);
+/// How long `wait_for_service` waits past the first matching subscriber (the Python
+/// client's `SETTLE_S`).
+pub const SETTLE: Duration = Duration::from_millis(250);
 
 /// A frame published while no service was reachable. `lost` false: it is in the cache and
 /// goes out when a service asks for it after reconnecting; true: the outage outlasted the
@@ -329,11 +332,17 @@ impl DetectionPublisher {
             .is_some_and(|s| s.matching())
     }
 
-    /// True once a service subscribes to this sensor's detections (false after `timeout`).
+    /// True once some subscriber matches this sensor's detections key, and `SETTLE` more
+    /// has passed (false after `timeout`). Any subscriber counts: a recorder, a viewer or a
+    /// group's scout already listening makes this true before the sensor's owner subscribes;
+    /// the owner subscribes on seeing this publisher's token, within milliseconds, and
+    /// `SETTLE` covers that (its history query could otherwise race the first frames), as
+    /// the Python `DetectionPublisher.wait_for_service` does.
     pub fn wait_for_service(&self, timeout: Duration) -> bool {
         let deadline = Instant::now() + timeout;
         loop {
             if self.delivering() {
+                std::thread::sleep(SETTLE);
                 return true;
             }
             if Instant::now() >= deadline {
