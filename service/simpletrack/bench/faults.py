@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from simpletrack.bench.stats import status_mb
 from simpletrack.client import Box, DetectionPublisher, TrackMessage, TrackSubscriber
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.spawn import ROOT, free_port
@@ -287,13 +288,8 @@ def _wait_port(port: int, timeout: float) -> None:
 
 
 def _peak_mb(pid: int) -> float:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return float("nan")
+    mb = status_mb(pid, "VmHWM")
+    return float("nan") if mb is None else mb
 
 
 def _kept(before: dict[int, int], after: dict[int, int]) -> str:

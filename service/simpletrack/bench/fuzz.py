@@ -22,6 +22,7 @@ import msgpack
 import numpy as np
 import zenoh
 
+from simpletrack.bench.stats import status_mb
 from simpletrack.session import ZenohOptions, open_session
 from simpletrack.spawn import spawned_service
 from simpletrack.wire.codec import Rejection, decode_message, decode_track_frame
@@ -231,14 +232,10 @@ class _Answers:
 
 
 def _peak_rss_mb(pid: int) -> float:
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return float(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024
+    mb = status_mb(pid, "VmHWM")
+    if mb is None:  # reaped already: the largest child's peak
+        return float(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024
+    return mb
 
 
 def run_fuzz(

@@ -47,6 +47,7 @@ from simpletrack.bench.service import (
     sweep,
     wait_tracker,
 )
+from simpletrack.bench.stats import status_mb
 from simpletrack.session import BLOCK_WAIT_BEFORE_CLOSE_US
 from simpletrack.spawn import free_port
 
@@ -124,10 +125,14 @@ def fault_figures(
     not_recovered = 0
     served = 0
     first_ms: list[float] = []  # each moved sensor's first frame put after the fault
+    bystanders: set[int] = set()  # last served by a survivor before the fault
     for sensor, events in by_sensor.items():
         events.sort()
         before = [inst for t, inst in events if t < fault_ns]
-        if not before or before[-1] != victim:
+        if not before:
+            continue
+        if before[-1] != victim:
+            bystanders.add(sensor)
             continue
         served += 1
         after = next((t for t, inst in events if t >= fault_ns and inst != victim), None)
@@ -156,7 +161,7 @@ def fault_figures(
     return {
         "victim": victim,
         "sensors_served_by_victim": served,
-        **_bystanders(by_frame, sent_ns, fault_ns, victim, warm_ticks),
+        **_bystanders(by_frame, sent_ns, fault_ns, bystanders, warm_ticks),
         "max_ms": round(max(gaps_ms), 1) if gaps_ms else None,
         "median_ms": round(statistics.median(gaps_ms), 1) if gaps_ms else None,
         "not_recovered": not_recovered,
@@ -178,18 +183,12 @@ def _bystanders(
     by_frame: dict[tuple[int, int], list[tuple[int, str]]],
     sent_ns: Sequence[Sequence[int]],
     fault_ns: int,
-    victim: str,
+    kept: set[int],
     warm_ticks: int,
 ) -> dict[str, Any]:
-    """Latency of the sensors a survivor served before the fault (not moved by it), over the
-    frames put in the STALL_S before it and the STALL_S after it: whether taking the
-    victim's sensors over held the survivors' own sensors back."""
-    last: dict[int, tuple[int, str]] = {}
-    for (sensor, _), events in by_frame.items():
-        for t, inst in events:
-            if t < fault_ns and t > last.get(sensor, (-1, ""))[0]:
-                last[sensor] = (t, inst)
-    kept = {sensor for sensor, (_, inst) in last.items() if inst != victim}
+    """Latency of the sensors a survivor served before the fault (``kept``: not moved by
+    it), over the frames put in the STALL_S before it and the STALL_S after it: whether
+    taking the victim's sensors over held the survivors' own sensors back."""
     span = int(STALL_S * 1e9)
     before: list[float] = []
     after: list[float] = []
@@ -218,13 +217,8 @@ def _bystanders(
 
 def rss_mb(pid: int) -> float | None:
     """The process's resident memory now (None once it is gone)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return round(int(line.split()[1]) / 1024, 1)
-    except OSError:
-        return None
-    return None
+    mb = status_mb(pid, "VmRSS")
+    return None if mb is None else round(mb, 1)
 
 
 def fault_run(

@@ -1,5 +1,5 @@
 """Summaries shared by the benchmarks: latency percentiles, CDF samples, power-law fits,
-and the facts about the machine that a figure must be quoted with."""
+the facts about the machine that a figure must be quoted with, and a process's memory."""
 
 from __future__ import annotations
 
@@ -67,6 +67,19 @@ def _version(dist: str) -> str | None:
         return importlib.metadata.version(dist)
     except importlib.metadata.PackageNotFoundError:
         return None
+
+
+def status_mb(pid: int, field: str) -> float | None:
+    """A memory field of ``/proc/<pid>/status`` in MB (``VmRSS``: resident now, ``VmHWM``:
+    its peak); None once the process is gone or the field is absent."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith(f"{field}:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
 
 
 def machine() -> dict[str, Any]:

@@ -556,6 +556,8 @@ class CustodyMachine(Generic[F]):
                     s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
                     self._fenced.add(stream)
             return acts
+        if not self._fenced:
+            return acts  # every item's beat, nothing fenced: no walk, no new set
         self._fenced = {k for k in self._fenced if self._is_fenced(k)}
         if not self._fenced:
             return acts
