@@ -179,6 +179,22 @@ def test_a_new_holders_replay_after_a_partition_is_delivered_once() -> None:
     assert f.admit(k, 0, 50, 2) is DELIVER
 
 
+def test_a_new_holders_message_sharing_the_last_stamp_is_delivered() -> None:
+    """A fused vehicle's lidar and camera frames can share a stamp, two messages (seq 75 and
+    76). The old holder's last delivered was 75; the taker sends 75 again, then 76: 76 is
+    new (it was lost to a planner in a kill test when the rule looked at stamps alone)."""
+    f = StreamFilter()
+    k = "fleet/veh00/@vehicle/tracks"
+    assert [f.admit(k, q, s, 1) for q, s in ((74, 2900), (75, 3000))] == [DELIVER] * 2
+    assert f.admit(k, 75, 3000, 2) is REPEAT
+    assert f.admit(k, 76, 3000, 2) is DELIVER
+    assert f.admit(k, 77, 3067, 2) is DELIVER
+    g = StreamFilter(recent_frames=1)  # a lower seq at the same stamp, out of the window
+    assert [g.admit(k, q, 3000, 1) for q in (75, 76)] == [DELIVER] * 2
+    assert g.admit(k, 75, 3000, 2) is REPEAT
+    assert g.admit(k, 76, 3000, 2) is REPEAT
+
+
 def test_no_epoch_is_judged_by_the_repeat_rule_only_and_keeps_the_highest() -> None:
     f = StreamFilter()
     k = "fleet/car-1/@vehicle/tracks"

@@ -1,10 +1,11 @@
 """Fused vehicles are streams like sensors (server/streams.py): three members share six
 vehicles, each a lidar at 10 Hz and a camera at 15 Hz fused into one track list; the member
 owning a vehicle is killed with SIGKILL mid-stream. Every vehicle message (by the vehicle's
-seq) reaches the planner exactly once (on the wire the killed member's last one may come
-twice, from two members), and its tracks are those the core's fused tracker gives on the
-same frames in stamp order, message for message: the vehicle's stream was taken over with
-its checkpoint and the frames since, replayed through its reorder window."""
+seq) reaches the planner exactly once, and its tracks are those the core's fused tracker
+gives on the same frames in stamp order, message for message: the vehicle's stream was taken
+over with its checkpoint and the frames since, replayed through its reorder window. On the
+wire a moved vehicle's messages around the kill may come twice (at least once), the same
+tracks from both members: the taker publishes again from the last message it heard."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import contextlib
 import signal
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +30,11 @@ from tests.service_helpers import wait_for
 pytestmark = pytest.mark.zenoh
 VEHICLES = 6
 SECONDS = 8.0
+# A kill cuts the victim's last messages off on some links and not others (its sockets are
+# reset; what a peer had not read yet is lost): the taker may have heard one or two fewer
+# than the planner did (seen: one, in one run of about twelve). Republishing from a
+# checkpoint instead of from the last message heard would repeat about a dozen.
+MOST_REPEATS = 3
 
 
 class FusedFleet(threading.Thread):
@@ -77,13 +84,20 @@ def test_a_killed_owner_of_fused_vehicles_changes_no_fused_track(tmp_path: Path)
             group.add(name)
         with planner_session(group) as session:
             raw: dict[str, list[tuple[int, str]]] = {}
+            unequal: list[tuple[str, int, str]] = []
             lock = threading.Lock()
 
             def on_raw(sample: zenoh.Sample) -> None:
                 out = decode_vehicle_track_frame(sample.payload.to_bytes())
                 assert not isinstance(out, Rejection), out
+                frame, tracks = out
+                w = want[frame.seq] if frame.seq < len(want) else None
+                same = w is not None and np.array_equal(tracks.id, w.id)
+                same = same and np.array_equal(tracks.center, w.center)
                 with lock:
-                    raw.setdefault(out[0].vehicle, []).append((out[0].seq, out[0].instance))
+                    raw.setdefault(frame.vehicle, []).append((frame.seq, frame.instance))
+                    if not same:
+                        unequal.append((frame.vehicle, frame.seq, frame.instance))
 
             sub = session.declare_subscriber("fleet/*/@vehicle/tracks", on_raw)
             delivered: dict[str, list[VehicleTrackMessage]] = {}
@@ -124,7 +138,16 @@ def test_a_killed_owner_of_fused_vehicles_changes_no_fused_track(tmp_path: Path)
             np.testing.assert_array_equal(m.tracks.id, w.id, err_msg=f"{vehicle} seq {m.seq}")
             np.testing.assert_array_equal(m.tracks.center, w.center, err_msg=vehicle)
         seqs = [s for s, _ in raw[vehicle]]
-        repeats = len(seqs) - len(set(seqs))
-        assert repeats <= (1 if vehicle in moved else 0), (vehicle, repeats)
+        repeated = sorted(s for s, n in Counter(seqs).items() if n > 1)
         instances = {i for _, i in raw[vehicle]}
-        assert (victim in instances) and (len(instances) == 2) if vehicle in moved else True
+        if vehicle not in moved:
+            assert not repeated and len(instances) == 1, (vehicle, repeated, instances)
+            continue
+        assert victim in instances and len(instances) == 2, (vehicle, instances)
+        # The repeats are where the two members meet: the victim's last messages, each
+        # published once more by the taker, and nothing else.
+        last = max(s for s, i in raw[vehicle] if i == victim)
+        first = min(s for s, i in raw[vehicle] if i != victim)
+        assert repeated == list(range(first, last + 1)), (vehicle, repeated, first, last)
+        assert len(seqs) - len(set(seqs)) == len(repeated) <= MOST_REPEATS, (vehicle, repeated)
+    assert not unequal, unequal[:5]

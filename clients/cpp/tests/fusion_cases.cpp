@@ -204,6 +204,15 @@ void the_stream_filter_drops_repeats_and_fenced_holders() {
   CHECK(p.admit(k, 45, 4500, 1) == Verdict::stale);
   CHECK(p.admit(k, 0, 50, 2) == Verdict::deliver);  // caught up: a stamp going back is new
 
+  // A fused vehicle's lidar and camera frames can share a stamp: two messages, 75 and 76.
+  simpletrack::StreamFilter v;
+  CHECK(v.admit(k, 74, 2900, 1) == Verdict::deliver && v.admit(k, 75, 3000, 1) == Verdict::deliver);
+  CHECK(v.admit(k, 75, 3000, 2) == Verdict::repeat);
+  CHECK(v.admit(k, 76, 3000, 2) == Verdict::deliver && v.admit(k, 77, 3067, 2) == Verdict::deliver);
+  simpletrack::StreamFilter w(1);  // out of the window: by (stamp, seq)
+  CHECK(w.admit(k, 75, 3000, 1) == Verdict::deliver && w.admit(k, 76, 3000, 1) == Verdict::deliver);
+  CHECK(w.admit(k, 75, 3000, 2) == Verdict::repeat && w.admit(k, 76, 3000, 2) == Verdict::repeat);
+
   simpletrack::StreamFilter b(2, 2);  // bounded: a third stream forgets the first two
   CHECK(b.admit("a", 0, 0, 5) == Verdict::deliver && b.admit("b", 0, 0, 5) == Verdict::deliver);
   CHECK(b.admit("c", 0, 0, 5) == Verdict::deliver && !b.highest_epoch("a"));

@@ -29,13 +29,14 @@ pub enum Verdict {
 #[derive(Default)]
 struct Stream {
     recent: VecDeque<(u64, u64)>,
-    /// The stamp of the last message delivered.
-    last_stamp: Option<u64>,
-    /// After the epoch rose: the last stamp delivered from the holder before. The new
+    /// (stamp_ns, seq) of the last message delivered.
+    last: Option<(u64, u64)>,
+    /// After the epoch rose: the last message delivered from the holder before. The new
     /// holder's messages at or before it are repeats (it replays from the last frame it
-    /// heard, which after a partition is more frames back than the window holds). None:
-    /// caught up.
-    handover: Option<u64>,
+    /// heard, which after a partition is more frames back than the window holds). By
+    /// (stamp, seq): a fused vehicle's lidar and camera frames can share a stamp, each its
+    /// own message. None: caught up.
+    handover: Option<(u64, u64)>,
 }
 
 /// Per stream key: its highest epoch, its last `recent_frames` deliveries, and where a new
@@ -83,10 +84,10 @@ impl StreamFilter {
         let stream = self.streams.entry(key.to_owned()).or_default();
         if let (Some(now), Some(before)) = (epoch, before) {
             if now > before {
-                stream.handover = stream.last_stamp;
+                stream.handover = stream.last;
             }
         }
-        let caught_up = stream.handover.is_none_or(|h| stamp_ns > h);
+        let caught_up = stream.handover.is_none_or(|h| (stamp_ns, seq) > h);
         if stream.recent.contains(&(seq, stamp_ns)) || (epoch.is_some() && !caught_up) {
             return Verdict::Repeat;
         }
@@ -95,7 +96,7 @@ impl StreamFilter {
             stream.recent.pop_front();
         }
         stream.recent.push_back((seq, stamp_ns));
-        stream.last_stamp = Some(stamp_ns);
+        stream.last = Some((stamp_ns, seq));
         Verdict::Deliver
     }
 
@@ -167,6 +168,23 @@ mod tests {
         assert_eq!(f.admit(K, 45, 4500, Some(1)), Stale); // the old holder, still on its side
                                                           // Caught up: a stamp going back (a rebooted vehicle) is a new frame again.
         assert_eq!(f.admit(K, 0, 50, Some(2)), Deliver);
+    }
+
+    #[test]
+    fn a_new_holders_message_sharing_the_last_stamp_is_delivered() {
+        // A fused vehicle's lidar and camera frames can share a stamp, two messages.
+        let v = "fleet/veh00/@vehicle/tracks";
+        let mut f = StreamFilter::default();
+        assert_eq!(f.admit(v, 74, 2900, Some(1)), Deliver);
+        assert_eq!(f.admit(v, 75, 3000, Some(1)), Deliver);
+        assert_eq!(f.admit(v, 75, 3000, Some(2)), Repeat);
+        assert_eq!(f.admit(v, 76, 3000, Some(2)), Deliver);
+        assert_eq!(f.admit(v, 77, 3067, Some(2)), Deliver);
+        let mut g = StreamFilter::new(1, MAX_STREAM_KEYS); // out of the window: by (stamp, seq)
+        assert_eq!(g.admit(v, 75, 3000, Some(1)), Deliver);
+        assert_eq!(g.admit(v, 76, 3000, Some(1)), Deliver);
+        assert_eq!(g.admit(v, 75, 3000, Some(2)), Repeat);
+        assert_eq!(g.admit(v, 76, 3000, Some(2)), Repeat);
     }
 
     #[test]

@@ -25,11 +25,13 @@ class Verdict(Enum):
 class _Stream:
     recent: deque[tuple[int, int]]
     epoch: int | None = None  # the highest seen; None until a message carries one
-    last_stamp: int | None = None  # of the last message delivered
+    last: tuple[int, int] | None = None  # (stamp_ns, seq) of the last message delivered
     # A new holder replays from the last frame it heard, which may be many frames behind
-    # (a partition lasts a lease at least): its messages up to the last stamp delivered
-    # from the holder before are repeats, whatever the window holds. None: caught up.
-    handover: int | None = None
+    # (a partition lasts a lease at least): its messages up to the last one delivered from
+    # the holder before are repeats, whatever the window holds. By (stamp, seq): a fused
+    # vehicle's lidar and camera frames can share a stamp, each its own message. None:
+    # caught up.
+    handover: tuple[int, int] | None = None
 
 
 class StreamFilter:
@@ -64,17 +66,17 @@ class StreamFilter:
                     self.stale += 1
                     return Verdict.STALE
                 if stream.epoch is not None and epoch > stream.epoch:
-                    stream.handover = stream.last_stamp
+                    stream.handover = stream.last
                 # Raised even by a repeat: a new holder may send again what the old one sent,
                 # and is the holder all the same.
                 stream.epoch = epoch
-            caught_up = stream.handover is None or stamp_ns > stream.handover
+            caught_up = stream.handover is None or (stamp_ns, seq) > stream.handover
             if (seq, stamp_ns) in stream.recent or (epoch is not None and not caught_up):
                 self.repeats += 1
                 return Verdict.REPEAT
             stream.handover = None
             stream.recent.append((seq, stamp_ns))
-            stream.last_stamp = stamp_ns
+            stream.last = (stamp_ns, seq)
             return Verdict.DELIVER
 
     def highest_epoch(self, key: str) -> int | None:

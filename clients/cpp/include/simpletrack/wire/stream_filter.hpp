@@ -61,8 +61,8 @@ class StreamFilter {
       return Verdict::stale;
     }
     Stream& s = streams_[k];
-    if (epoch && before && *epoch > *before) s.handover = s.last_stamp;
-    const bool caught_up = !s.handover || stamp_ns > *s.handover;
+    if (epoch && before && *epoch > *before) s.handover = s.last;
+    const bool caught_up = !s.handover || std::make_pair(stamp_ns, seq) > *s.handover;
     const bool seen =
         std::find(s.recent.begin(), s.recent.end(), std::make_pair(seq, stamp_ns)) != s.recent.end();
     if (seen || (epoch && !caught_up)) {
@@ -72,7 +72,7 @@ class StreamFilter {
     s.handover.reset();
     if (s.recent.size() >= recent_frames_) s.recent.pop_front();
     s.recent.emplace_back(seq, stamp_ns);
-    s.last_stamp = stamp_ns;
+    s.last = std::make_pair(stamp_ns, seq);
     return Verdict::deliver;
   }
 
@@ -87,10 +87,12 @@ class StreamFilter {
  private:
   struct Stream {
     std::deque<std::pair<std::uint64_t, std::uint64_t>> recent;  // (seq, stamp_ns) delivered
-    std::optional<std::uint64_t> last_stamp;                     // of the last delivered
-    // After the epoch rose: the last stamp delivered from the holder before; the new holder's
-    // messages at or before it are repeats. nullopt: caught up.
-    std::optional<std::uint64_t> handover;
+    // (stamp_ns, seq) of the last delivered.
+    std::optional<std::pair<std::uint64_t, std::uint64_t>> last;
+    // After the epoch rose: the last message delivered from the holder before; the new
+    // holder's messages at or before it are repeats. By (stamp, seq): a fused vehicle's lidar
+    // and camera frames can share a stamp, each its own message. nullopt: caught up.
+    std::optional<std::pair<std::uint64_t, std::uint64_t>> handover;
   };
 
   std::size_t recent_frames_;
