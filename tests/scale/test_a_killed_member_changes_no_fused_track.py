@@ -141,7 +141,7 @@ def test_a_killed_owner_of_fused_vehicles_changes_no_fused_track(tmp_path: Path)
         repeated = sorted(s for s, n in Counter(seqs).items() if n > 1)
         instances = {i for _, i in raw[vehicle]}
         if vehicle not in moved:
-            assert not repeated and len(instances) == 1, (vehicle, repeated, instances)
+            assert not repeated, (vehicle, repeated)
             continue
         assert victim in instances and len(instances) == 2, (vehicle, instances)
         # The repeats are where the two members meet: the victim's last messages, each
