@@ -7,6 +7,7 @@ there, the stage shims still reach the functions the tracker calls, and the coun
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from simpletrack.bench import loadgen
 from simpletrack.bench.core import synthetic_stream
 from simpletrack.bench.service import summarize_profile
 from simpletrack.bench.stages import STAGES, TARGETS, MissingStageTarget, StageTimer
+from simpletrack.cli.bench import drawn
 from simpletrack.cli.main import main
 from simpletrack.core.config import preset
 from simpletrack.core.tracker import Tracker
@@ -57,6 +59,26 @@ def test_core_sweep_writes_json_and_plot(tmp_path: Path) -> None:
     assert np.isfinite(sweep["exponent"])
     assert doc["machine_before"]["cpus"] >= 1
     assert is_png(tmp_path / "core_scaling.png")
+
+
+def test_without_matplotlib_the_figures_still_reach_the_json(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bare host without the plot extra (scripts/bench_host.sh): the run's JSON is written,
+    the plots are not, and one line says what to install; it lost a whole run before."""
+    for name in [m for m in sys.modules if m.split(".")[0] == "matplotlib"]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib... fails
+    out = tmp_path / "core.json"
+    load = ["--scenes", "0", "--kitti-sequences", "0", "--sizes", "5,20", "--sweep-frames", "3"]
+    rc = main(["bench", "core", *load, "--json", str(out), "--plot-dir", str(tmp_path)])
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert [p["boxes"] for p in doc["sweep"]["points"]] == [5, 20] and doc["plots"] == []
+    assert not list(tmp_path.glob("*.png"))
+    assert "no plots drawn: needs the plot extra" in capsys.readouterr().err
+    with pytest.raises(ModuleNotFoundError):  # any other missing module is a real error
+        drawn(lambda: [Path(str(__import__("simpletrack_no_such_module")))])
 
 
 def test_stage_shims_reach_every_stage_the_tracker_uses() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -570,6 +571,24 @@ def _out_paths(args: argparse.Namespace) -> None:
                 raise UserError(f"cannot create {path}: {exc.strerror}") from None
 
 
+def drawn(draw: Callable[[], list[Path]]) -> list[Path]:
+    """The plots ``draw`` wrote; none when matplotlib is missing, said in one line: the run's
+    figures still go to its JSON (a long benchmark on a bare host is not lost to its PNGs)."""
+    try:
+        written = draw()
+    except ModuleNotFoundError as exc:
+        from simpletrack.cli.main import extra_hint
+
+        hint = extra_hint(exc.name)
+        if hint is None:
+            raise
+        print(f"simpletrack bench: no plots drawn: {hint}", file=sys.stderr)
+        return []
+    for p in written:
+        print(f"wrote {p}")
+    return written
+
+
 def _write_json(path: Path | None, doc: dict[str, Any]) -> None:
     if path is not None:
         path.write_text(json.dumps(doc, indent=1) + "\n")
@@ -658,14 +677,17 @@ def run_core(args: argparse.Namespace) -> int:
     }
     print(core_tables(doc))
     if args.plot_dir is not None:
-        written = []
-        if result["sweep"]:
-            written.append(plots.core_scaling(result["sweep"], args.plot_dir / "core_scaling.png"))
-        if result["loads"]:
-            written.append(plots.core_stages(result["loads"], args.plot_dir / "core_stages.png"))
-        doc["plots"] = [str(p) for p in written]
-        for p in written:
-            print(f"wrote {p}")
+        plot_dir = args.plot_dir
+
+        def draw() -> list[Path]:
+            written = []
+            if result["sweep"]:
+                written.append(plots.core_scaling(result["sweep"], plot_dir / "core_scaling.png"))
+            if result["loads"]:
+                written.append(plots.core_stages(result["loads"], plot_dir / "core_stages.png"))
+            return written
+
+        doc["plots"] = [str(p) for p in drawn(draw)]
     _write_json(args.json, doc)
     return 0
 
@@ -776,13 +798,14 @@ def run_service(args: argparse.Namespace) -> int:
     }
     print(service_tables(doc))
     if args.plot_dir is not None and result["steps"]:
-        written = [
-            plots.service_cdf(result["steps"], args.plot_dir / "service_latency_cdf.png"),
-            plots.service_capacity(result["steps"], args.plot_dir / "service_capacity.png"),
-        ]
+        steps, plot_dir = result["steps"], args.plot_dir
+        written = drawn(
+            lambda: [
+                plots.service_cdf(steps, plot_dir / "service_latency_cdf.png"),
+                plots.service_capacity(steps, plot_dir / "service_capacity.png"),
+            ]
+        )
         doc["plots"] = [str(p) for p in written]
-        for p in written:
-            print(f"wrote {p}")
     _write_json(args.json, doc)
     return 0
 
@@ -845,10 +868,12 @@ def run_scale(args: argparse.Namespace) -> int:
     }
     print(scale_tables(doc))
     if args.out is not None:
-        png = plots.scale_capacity(result["members"], args.out / "scale_capacity.png")
-        doc["plots"] = [str(png)]
-        print(f"wrote {png}")
-        _write_json(args.out / "scale.json", doc)
+        out = args.out
+        written = drawn(
+            lambda: [plots.scale_capacity(result["members"], out / "scale_capacity.png")]
+        )
+        doc["plots"] = [str(p) for p in written]
+        _write_json(out / "scale.json", doc)
     return 0
 
 
