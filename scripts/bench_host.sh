@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # "A host's worth of streams" measured on a bare many-core host in one run of fixed steps
-# (docs/BENCHMARKS.md, "The scale-out benchmark"): the capacity of 1, 4 and 8 members with
+# (docs/BENCHMARKS.md, "On a bare host, in one run"): the capacity of 1, 4 and 8 members with
 # the load generator pinned to 4 CPUs and the members on the rest, then a failover and a
 # hand-off among 8 members holding 1,000 sensors. Each step has its own time limit, so the
 # whole stays within about 8 minutes, and its output is kept even when a step fails.
@@ -59,7 +59,9 @@ export PYTHONPATH="${SITE:+$SITE:}$ROOT/clients:$ROOT/service:$ROOT/schemas${PYT
 export NUMBA_CACHE_DIR="${NUMBA_CACHE_DIR:-$SCRATCH/numba}"
 ST=("$PY" -m simpletrack.cli.main)
 
-CPUS=$(nproc)
+# The CPUs this process may use (a container's cpuset need not start at 0).
+read -r -a CPU_LIST <<<"$("$PY" -c "import os; print(*sorted(os.sched_getaffinity(0)))")"
+CPUS=${#CPU_LIST[@]}
 {
   echo "commit: $(git -C "$ROOT" rev-parse --short HEAD 2>/dev/null || echo unknown)"
   echo "cpus: $CPUS ($(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'))"
@@ -73,14 +75,17 @@ log "compiling the kernels"
   { log "the kernels did not compile"; tail -20 "$OUT/preload.txt"; exit 1; }
 log "compiled"
 
-# The generator's fixed budget: CPUs 0-3; the members (and the bench) on the others.
+# The generator's fixed budget: the first 4 CPUs (1 below 16); the members (and the bench) on
+# the others.
+join() { local IFS=,; echo "$*"; }
 if ((CPUS >= 16)); then
-  GEN="0-3" MEMBERS="4-$((CPUS - 1))"
+  GEN="$(join "${CPU_LIST[@]:0:4}")" MEMBERS="$(join "${CPU_LIST[@]:4}")"
 elif ((CPUS >= 2)); then
-  GEN="0" MEMBERS="1-$((CPUS - 1))"
+  GEN="${CPU_LIST[0]}" MEMBERS="$(join "${CPU_LIST[@]:1}")"
 else
   log "needs 2 CPUs at least, found $CPUS"; exit 2
 fi
+log "generator on CPUs $GEN, members on $MEMBERS"
 if ((QUICK)); then
   INSTANCES="1,2" SENSORS="2,4" DURATION=2 BUDGET=30 GENS=1
   FAULT_MEMBERS=2 FAULT_SENSORS=4 FAULT_DURATION=4 LIMITS=(240 240)
