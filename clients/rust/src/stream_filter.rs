@@ -2,9 +2,10 @@
 //! sensor's, or one fused vehicle's `@vehicle`). Not a message of a fenced holder, whose
 //! custody `epoch` is below the highest the stream has shown (`EpochFilter`); not an exact
 //! repeat of a recent (`seq`, `stamp_ns`); and, after custody moved, not the new holder's
-//! replay up to the last stamp delivered from the holder before it (schemas/README.md,
-//! "Custody epoch (fencing)"). The rule of the Python clients' `StreamFilter`, verdict for
-//! verdict; `TrackSubscriber` and `VehicleTrackSubscriber` both use it.
+//! replay up to the last message (by stamp, then seq) delivered from the holder before it
+//! (schemas/README.md, "Custody epoch (fencing)"). The rule of the Python clients'
+//! `StreamFilter`, verdict for verdict; `TrackSubscriber` and `VehicleTrackSubscriber` both
+//! use it.
 
 use std::collections::{HashMap, VecDeque};
 
@@ -28,9 +29,8 @@ pub enum Verdict {
 
 #[derive(Default)]
 struct Stream {
+    /// (stamp_ns, seq) delivered, the last one last.
     recent: VecDeque<(u64, u64)>,
-    /// (stamp_ns, seq) of the last message delivered.
-    last: Option<(u64, u64)>,
     /// After the epoch rose: the last message delivered from the holder before. The new
     /// holder's messages at or before it are repeats (it replays from the last frame it
     /// heard, which after a partition is more frames back than the window holds). By
@@ -84,19 +84,18 @@ impl StreamFilter {
         let stream = self.streams.entry(key.to_owned()).or_default();
         if let (Some(now), Some(before)) = (epoch, before) {
             if now > before {
-                stream.handover = stream.last;
+                stream.handover = stream.recent.back().copied();
             }
         }
         let caught_up = stream.handover.is_none_or(|h| (stamp_ns, seq) > h);
-        if stream.recent.contains(&(seq, stamp_ns)) || (epoch.is_some() && !caught_up) {
+        if stream.recent.contains(&(stamp_ns, seq)) || (epoch.is_some() && !caught_up) {
             return Verdict::Repeat;
         }
         stream.handover = None;
         if stream.recent.len() >= self.recent_frames {
             stream.recent.pop_front();
         }
-        stream.recent.push_back((seq, stamp_ns));
-        stream.last = Some((stamp_ns, seq));
+        stream.recent.push_back((stamp_ns, seq));
         Verdict::Deliver
     }
 

@@ -23,9 +23,8 @@ class Verdict(Enum):
 
 @dataclass(slots=True)
 class _Stream:
-    recent: deque[tuple[int, int]]
+    recent: deque[tuple[int, int]]  # (stamp_ns, seq) delivered, the last one last
     epoch: int | None = None  # the highest seen; None until a message carries one
-    last: tuple[int, int] | None = None  # (stamp_ns, seq) of the last message delivered
     # A new holder replays from the last frame it heard, which may be many frames behind
     # (a partition lasts a lease at least): its messages up to the last one delivered from
     # the holder before are repeats, whatever the window holds. By (stamp, seq): a fused
@@ -66,17 +65,16 @@ class StreamFilter:
                     self.stale += 1
                     return Verdict.STALE
                 if stream.epoch is not None and epoch > stream.epoch:
-                    stream.handover = stream.last
+                    stream.handover = stream.recent[-1] if stream.recent else None
                 # Raised even by a repeat: a new holder may send again what the old one sent,
                 # and is the holder all the same.
                 stream.epoch = epoch
             caught_up = stream.handover is None or (stamp_ns, seq) > stream.handover
-            if (seq, stamp_ns) in stream.recent or (epoch is not None and not caught_up):
+            if (stamp_ns, seq) in stream.recent or (epoch is not None and not caught_up):
                 self.repeats += 1
                 return Verdict.REPEAT
             stream.handover = None
-            stream.recent.append((seq, stamp_ns))
-            stream.last = (stamp_ns, seq)
+            stream.recent.append((stamp_ns, seq))
             return Verdict.DELIVER
 
     def highest_epoch(self, key: str) -> int | None:

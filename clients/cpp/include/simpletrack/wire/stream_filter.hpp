@@ -2,9 +2,10 @@
 // key: one sensor's `<prefix>/<vehicle>/<sensor>/tracks`, or a fused vehicle's
 // `<prefix>/<vehicle>/@vehicle/tracks`). Not a message of a fenced holder, whose custody epoch
 // is below the highest the stream has shown (EpochFilter); not an exact repeat of a recent
-// (seq, stamp_ns); and, after custody moved, not the new holder's replay up to the last stamp
-// delivered from the holder before it (schemas/README.md, "Custody epoch (fencing)"). The rule
-// of the Python and Rust subscribers, verdict for verdict. In a zenoh-cpp subscriber:
+// (seq, stamp_ns); and, after custody moved, not the new holder's replay up to the last message
+// (by stamp, then seq) delivered from the holder before it (schemas/README.md, "Custody epoch
+// (fencing)"). The rule of the Python and Rust subscribers, verdict for verdict. In a zenoh-cpp
+// subscriber:
 //
 //   simpletrack::StreamFilter filter;  // one per subscriber
 //   auto fused = wire::decode_vehicle_track_frame(data, size);
@@ -61,18 +62,19 @@ class StreamFilter {
       return Verdict::stale;
     }
     Stream& s = streams_[k];
-    if (epoch && before && *epoch > *before) s.handover = s.last;
+    if (epoch && before && *epoch > *before) {
+      s.handover = s.recent.empty() ? std::nullopt : std::make_optional(s.recent.back());
+    }
     const bool caught_up = !s.handover || std::make_pair(stamp_ns, seq) > *s.handover;
     const bool seen =
-        std::find(s.recent.begin(), s.recent.end(), std::make_pair(seq, stamp_ns)) != s.recent.end();
+        std::find(s.recent.begin(), s.recent.end(), std::make_pair(stamp_ns, seq)) != s.recent.end();
     if (seen || (epoch && !caught_up)) {
       ++repeats_;
       return Verdict::repeat;
     }
     s.handover.reset();
     if (s.recent.size() >= recent_frames_) s.recent.pop_front();
-    s.recent.emplace_back(seq, stamp_ns);
-    s.last = std::make_pair(stamp_ns, seq);
+    s.recent.emplace_back(stamp_ns, seq);
     return Verdict::deliver;
   }
 
@@ -86,9 +88,8 @@ class StreamFilter {
 
  private:
   struct Stream {
-    std::deque<std::pair<std::uint64_t, std::uint64_t>> recent;  // (seq, stamp_ns) delivered
-    // (stamp_ns, seq) of the last delivered.
-    std::optional<std::pair<std::uint64_t, std::uint64_t>> last;
+    // (stamp_ns, seq) delivered, the last one last.
+    std::deque<std::pair<std::uint64_t, std::uint64_t>> recent;
     // After the epoch rose: the last message delivered from the holder before; the new
     // holder's messages at or before it are repeats. By (stamp, seq): a fused vehicle's lidar
     // and camera frames can share a stamp, each its own message. nullopt: caught up.
