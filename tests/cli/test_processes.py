@@ -26,6 +26,7 @@ from simpletrack.cli.processes import (
     RestartPolicy,
     child_specs,
     passed_on,
+    refused,
 )
 from simpletrack.cli.serve import settings_from_args
 from simpletrack.spawn import free_run
@@ -190,20 +191,55 @@ def test_a_killed_child_is_restarted_and_answers_again(tmp_path: Path) -> None:
 
 
 @pytest.mark.zenoh
-def test_a_child_that_keeps_dying_stops_the_group_non_zero(tmp_path: Path) -> None:
-    # Child 1's metrics port is held: it can never start, child 0 is fine.
+def test_a_child_refused_at_its_first_start_stops_the_group_at_once_with_its_error(
+    tmp_path: Path,
+) -> None:
+    # Child 1's metrics port is held from the start: its arguments can never run, and
+    # restarting it five times over ~20 s would only hide the reason.
     g = Group(tmp_path, 2)
     with socket.socket() as blocker:
         blocker.bind(("127.0.0.1", g.metrics_port + 1))
         blocker.listen()
         try:
-            code = g.svc.proc.wait(CRASH_WINDOW_S + 60)
+            code = g.svc.proc.wait(90)
         except subprocess.TimeoutExpired:
             g.svc.stop(signal.SIGKILL)
+            raise AssertionError(f"the group ran on:\n{g.svc.log_path.read_text()}") from None
+    assert code == 2
+    assert [e["child"] for e in g.events("child_refused")] == [1]
+    assert len(g.pids(1)) == 1 and not g.events("child_died") and not g.events("crash_loop")
+    assert f"metrics port {g.metrics_port + 1} on 127.0.0.1 is in use" in g.svc.log_path.read_text()
+    assert not [p for p in g.pids(0) + g.pids(1) if alive(p)]
+
+
+@pytest.mark.zenoh
+def test_a_child_that_keeps_dying_stops_the_group_non_zero(tmp_path: Path) -> None:
+    # Child 1 ran, was killed, and its metrics port was taken meanwhile: each restart is
+    # refused (a restart's refusal is retried: what holds the port may let go), until the
+    # crash loop gives up.
+    with group(tmp_path, 2) as g, socket.socket() as blocker:
+        os.kill(g.pids(1)[0], signal.SIGKILL)
+        # Readiness probes leave connections in TIME_WAIT on the port.
+        blocker.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+
+        def port_taken() -> bool:
+            try:
+                blocker.bind(("127.0.0.1", g.metrics_port + 1))
+            except OSError:
+                return False
+            blocker.listen()
+            return True
+
+        wait_for(port_taken, 5, "child 1's metrics port, freed by its death")
+        try:
+            code = g.svc.proc.wait(CRASH_WINDOW_S + 60)
+        except subprocess.TimeoutExpired:
             raise AssertionError(f"no crash loop:\n{g.svc.log_path.read_text()}") from None
     assert code != 0
-    assert len(g.events("child_died")) == RESTARTS_PER_WINDOW + 1
-    assert g.events("crash_loop")[0]["child"] == 1
+    died = g.events("child_died")
+    assert len(died) == RESTARTS_PER_WINDOW + 1
+    assert [e["code"] for e in died] == [128 + 9] + [2] * RESTARTS_PER_WINDOW
+    assert g.events("crash_loop")[0]["child"] == 1 and not g.events("child_refused")
     assert not [p for p in g.pids(0) + g.pids(1) if alive(p)]
 
 
@@ -271,6 +307,23 @@ def test_client_mode_children_share_the_routers_and_do_not_listen() -> None:
         assert "--listen" not in argv
         assert argv.count("--connect") == 1 and "tcp/router:7447" in argv
         assert argv[argv.index("--metrics-port") + 1] == "0"
+
+
+@pytest.mark.parametrize(
+    ("code", "starts", "stop_at_once"),
+    [
+        (2, 1, True),  # a usage error at the first start: the arguments cannot run
+        (2, 2, False),  # after a run: retried, with back-off
+        (1, 1, False),  # a crash
+        (0, 1, False),  # exited unasked
+        (128 + 9, 1, False),  # killed
+        (128 + 15, 3, False),
+    ],
+)
+def test_only_a_first_start_refused_as_a_usage_error_stops_the_group_at_once(
+    code: int, starts: int, stop_at_once: bool
+) -> None:
+    assert refused(code, starts) is stop_at_once
 
 
 def test_restarts_back_off_and_a_crash_loop_gives_up() -> None:

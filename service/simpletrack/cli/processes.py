@@ -15,8 +15,10 @@ fork+exec (subprocess) from a process that holds no Zenoh runtime. It forwards S
 to every child and waits for all of them (exit code: the worst child's); a child that dies
 without being asked is restarted after a back-off, and one that keeps dying
 (``RESTARTS_PER_WINDOW`` restarts within ``CRASH_WINDOW_S``) stops the group, exit code
-non-zero. The supervisor does not kill a child that takes long to stop: the deadline is the
-caller's (systemd's TimeoutStopSec, Kubernetes' terminationGracePeriodSeconds).
+non-zero. A child whose first start is refused (exit code 2: its own one-line error, such as
+a port in use) stops the group at once with code 2: the same arguments would be refused again.
+The supervisor does not kill a child that takes long to stop: the deadline is the caller's
+(systemd's TimeoutStopSec, Kubernetes' terminationGracePeriodSeconds).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ CRASH_WINDOW_S = 60.0
 FIRST_BACKOFF_S = 0.5
 MAX_BACKOFF_S = 10.0
 POLL_S = 0.1
+USAGE_EXIT = 2  # simpletrack's exit code for a refused start (cli/main.py, UserError)
 # The flags the supervisor sets per child; the rest are passed on as the user gave them.
 PER_CHILD = frozenset(
     {"processes", "instance", "metrics_port", "state_dir", "zenoh_listen", "zenoh_connect"}
@@ -217,6 +220,13 @@ class RestartPolicy:
         return float(min(MAX_BACKOFF_S, FIRST_BACKOFF_S * 2.0 ** (len(self.deaths) - 1)))
 
 
+def refused(code: int, starts: int) -> bool:
+    """A first start that ended in a usage error: a configuration that cannot run (a port
+    taken, a folder not writable). A restart's refusal is retried (what held the port may be
+    gone in a moment)."""
+    return code == USAGE_EXIT and starts == 1
+
+
 def exit_code(returncode: int) -> int:
     """A shell's view: killed by signal S is 128 + S."""
     return 128 - returncode if returncode < 0 else returncode
@@ -256,6 +266,7 @@ class Supervisor:
         self._signals: list[int] = []
         self._stopping = False
         self._gave_up = False
+        self._refused = False
         self._preexec = _die_with_parent()
 
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
@@ -290,6 +301,17 @@ class Supervisor:
         fields: dict[str, Any] = {"child": child.spec.index, "instance": child.spec.instance}
         if self._stopping:
             self.log.info("child_exited", **fields, pid=proc.pid, code=child.code)
+            return
+        if refused(child.code, child.starts):
+            self.log.error(
+                "child_refused",
+                **fields,
+                pid=proc.pid,
+                code=child.code,
+                action="stopping every child (its error is the line above)",
+            )
+            self._refused = True
+            self._stop_all(signal.SIGTERM)
             return
         self.log.warning("child_died", **fields, pid=proc.pid, code=child.code)
         delay = child.policy.after_death(now)
@@ -331,7 +353,11 @@ class Supervisor:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         worst = max(c.code for c in self.children)
-        code = max(worst, 1) if self._gave_up else worst
+        code = worst
+        if self._refused:
+            code = USAGE_EXIT
+        elif self._gave_up:
+            code = max(worst, 1)
         self.log.info("supervisor_stopped", code=code)
         return code
 
@@ -356,5 +382,6 @@ __all__ = [
     "auto_processes",
     "child_specs",
     "parse_processes",
+    "refused",
     "resolve",
 ]
