@@ -33,6 +33,9 @@ Guarantees, one table test (or a group) each:
  G11 a fused vehicle's stream replays through its reorder buffer (marked replayed).
  G12 an evicted stream asks again at its next frame; a cache answer after the takeover
      finished is ignored.
+ G13 the group changed: a stream stood by for and owned now, whose kept frames the old
+     owner never answered, is asked for at once (those frames wait for no next frame); one
+     whose frames were all answered, or still stood by for, or asked already, is not.
 """
 
 from __future__ import annotations
@@ -475,3 +478,67 @@ def test_g10_epochs_grow_by_one_takeover_and_differ_by_instance() -> None:
 def m_takeover(snap_epoch: int, heard_epoch: int) -> Takeover[Frame]:
     state = SensorSnapshot(**{**snap(5).model_dump(), "epoch": snap_epoch})
     return Takeover(S, Source.FAILOVER, state, Heard(0, 0, None, heard_epoch), [])
+
+
+# ---------------------------------------------------------------------- G13
+def standby_of(*seqs: int, state: int = 2) -> CustodyMachine[Frame]:
+    """A standby that kept ``seqs`` and has the owner's checkpoint at ``state``."""
+    m = machine()
+    for q in seqs:
+        assert isinstance(m.frame(S, f(q), view(Role.STANDBY), 0.0)[0], Keep)
+    m.checkpoint(S, snap(state, written_ns=10))
+    return m
+
+
+def test_g13_a_frame_the_dead_owner_never_answered_is_taken_over_at_the_group_change() -> None:
+    # The owner answered 2 and died (or left) before 3; 3 reached the standby before it saw
+    # the owner go. Its next frame may be seconds away: 3 must not wait for it.
+    m = standby_of(2, 3)
+    acts = m.promoted(lambda _: view(members=(ME, "c")), heard(2), 1.0)
+    assert acts == [Ask(S)] and m.phase(S) is Phase.ASKING
+    assert tracked(take(m, [], snap(2), heard(2))) == [(3, True)]
+    assert tracked(m.frame(S, f(4), view(), 1.0)) == [(4, True)]
+
+
+def test_g13_frames_that_arrive_while_asked_wait_behind_the_answer() -> None:
+    m = standby_of(2, 3)
+    assert m.promoted(lambda _: view(), heard(2), 1.0) == [Ask(S)]
+    assert m.frame(S, f(4), view(), 1.0) == []  # no second question
+    assert tracked(take(m, [snap(2)], snap(2), heard(2))) == [(3, True), (4, True)]
+
+
+@pytest.mark.parametrize(
+    ("case", "heard_fn", "the_view", "expect"),
+    [
+        ("every kept frame answered", heard(3), view(), []),
+        ("still stood by for", heard(2), view(Role.STANDBY), []),
+        ("owned by nobody here", heard(2), view(Role.NONE), []),
+        ("nothing heard: the owner answered none", nobody, view(), [Ask(S)]),
+        ("alone now", heard(2), view(members=(ME,)), [Resolve(S)]),
+    ],
+)
+def test_g13_who_is_asked_for_at_the_change(
+    case: str, heard_fn: object, the_view: View, expect: list[object]
+) -> None:
+    m = standby_of(2, 3)
+    assert m.promoted(lambda _: the_view, heard_fn, 1.0) == expect, case  # type: ignore[arg-type]
+    if not expect:
+        assert m.phase(S) is Phase.UNHELD
+
+
+def test_g13_a_stream_asked_already_or_held_is_left_alone() -> None:
+    m = standby_of(2, 3)
+    assert m.frame(S, f(4), view(), 1.0) == [Ask(S)]  # its next frame came first
+    assert m.promoted(lambda _: view(), heard(2), 1.0) == []
+    h = machine()
+    held(h, 3)
+    assert h.promoted(lambda _: view(), heard(1), 1.0) == []
+
+
+def test_g13_a_stream_just_released_to_a_member_not_seen_yet_is_not_taken_back() -> None:
+    m = machine()
+    held(m, 3)
+    assert m.frame(S, f(4), view(Role.STANDBY), 0.0)[0] == Release(S, OTHER)
+    m.released_as(S, snap(3), "c", 0.0)
+    m.frame(S, f(5), view(), 0.5)  # kept: "c" is not in the view yet
+    assert m.promoted(lambda _: view(), heard(3), 1.0) == []

@@ -444,6 +444,8 @@ class Service:
         self.metrics.members.set(len(after))
         if self._owned is not None:
             self._owned.changed()
+        for w in self._workers:
+            w.group_changed()
 
     def _wanted(self, key: str) -> bool:
         """Zenoh callback, every frame: only frames of sensors this member owns or stands

@@ -144,6 +144,11 @@ class Custody:
         return []
 
     # ------------------------------------------------------------------ taking over
+    def promoted(self) -> Actions:
+        """The group changed: streams this member stood by for and owns now, with frames the
+        old owner never answered, are asked for at once."""
+        return self.machine.promoted(self.view, self.heard, time.monotonic())
+
     def answered(self, stream: str, replies: Sequence[SensorSnapshot]) -> Actions:
         """The group answered: the machine picks the state, the registry adopts it (its ids
         exact: the floors apply only if the replay leaves a hole), the machine says what

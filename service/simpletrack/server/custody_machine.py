@@ -2,11 +2,11 @@
 
 A stream (server/streams.py: a sensor's own, or a fused vehicle's) is, on one member, in one
 ``Phase``; events come in (a frame, the group's answers, the vehicle's cache, a hand-off
-asked, a checkpoint, a beat of the worker's clock, a restart's snapshots) and actions come
-out (track, track without publishing, keep, ask, fetch the cache, release, announce missed,
-stash). The worker and the app carry the actions out (Zenoh, the registry, the trackers);
-this module imports no Zenoh and reads no clock: ``now`` is always passed in. Its table
-tests are ``tests/server/test_custody_machine.py``.
+asked, a checkpoint, the group changed, a beat of the worker's clock, a restart's
+snapshots) and actions come out (track, track without publishing, keep, ask, fetch the
+cache, release, announce missed, stash). The worker and the app carry the actions out
+(Zenoh, the registry, the trackers); this module imports no Zenoh and reads no clock:
+``now`` is always passed in. Its table tests are ``tests/server/test_custody_machine.py``.
 
 Frames are opaque to it (``F``): ``peek(frame) -> (key, seq, stamp_ns)`` reads what it needs.
 Only the worker's thread calls it.
@@ -396,6 +396,33 @@ class CustodyMachine(Generic[F]):
         if phase is Phase.CATCHING_UP:
             return [self._after_takeover(stream, s, frame)]
         return [Track(stream, frame)]
+
+    def promoted(
+        self,
+        view_of: Callable[[str], View],
+        heard: Callable[[str], Heard | None],
+        now: float,
+    ) -> list[Action[F]]:
+        """The group changed. A stream stood by for that this member owns now, with a kept
+        frame newer than the last tracks heard on its key (the owner died, or left, before
+        answering it), is asked for now: that frame waits for no other to start the
+        takeover (its next frame may be a whole period away, 2 s at 0.5 Hz). The others ask
+        at their next frame, as ever (nothing of theirs waits)."""
+        acts: list[Action[F]] = []
+        for stream, held in self._standby.items():
+            if not held.frames or self.phase(stream) is not Phase.UNHELD:
+                continue
+            view = view_of(stream)
+            if self.role(stream, view, now) is not Role.OWNER:
+                continue
+            last, newest = heard(stream), held.frames[-1][0]
+            if last is not None and newest is not None and newest <= last.stamp_ns:
+                continue
+            s = self._streams.setdefault(stream, _Stream())
+            s.phase = Phase.ASKING
+            alone = len(view.members) <= 1 and not self.released
+            acts.append(Resolve(stream) if alone else Ask(stream))
+        return acts
 
     def answered(
         self,

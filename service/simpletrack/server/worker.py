@@ -394,6 +394,11 @@ class Worker(threading.Thread):
             self.fused.forget(stream)
         self.custody.stash(stream)
 
+    def group_changed(self) -> None:
+        """From the membership's thread: the streams this member now owns with frames their
+        old owner never answered are taken over on this worker's thread, at its next turn."""
+        self.queue.put_control(lambda: self._carry(self.custody.promoted()), force=True)
+
     def _ask(self, stream: str) -> None:
         """Ask the group for a stream without waiting: its frames wait in the machine and
         the answers come back through the queue's control lane."""

@@ -1,0 +1,103 @@
+"""Two members share slow sensors (a frame every few seconds, as a radar or a parked vehicle
+may send). A frame put the moment its owner is killed (SIGKILL) or stopped (SIGTERM) reaches
+the standby before the standby sees the owner go: it is kept as the standby's copy. The
+standby, owning the sensor once it sees the owner go, must answer that frame then, not when
+the sensor's next frame comes (which used to start the takeover: a whole period late, 2 s
+at 0.5 Hz in `simpletrack bench scale`). Here no next frame comes at all."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from simpletrack.client import DetectionPublisher
+from simpletrack.wire import Rejection, decode_track_frame
+from tests.scale.fleet import Group, planner_session
+from tests.service_helpers import moving_cars, wait_for
+
+SENSORS = 12
+ANSWER_S = 3.0  # a takeover here takes ~0.1 s; the sensors' next frame would never come
+
+
+class Answers:
+    """(vehicle/sensor, seq) -> the instances that answered it."""
+
+    def __init__(self) -> None:
+        self.by_frame: dict[tuple[str, int], list[str]] = {}
+        self.lock = threading.Lock()
+
+    def on_tracks(self, sample: zenoh.Sample) -> None:
+        out = decode_track_frame(sample.payload.to_bytes())
+        assert not isinstance(out, Rejection), out
+        frame = out[0]
+        with self.lock:
+            key = (f"{frame.vehicle}/{frame.sensor}", frame.seq)
+            self.by_frame.setdefault(key, []).append(frame.instance)
+
+    def of(self, seq: int) -> dict[str, list[str]]:
+        with self.lock:
+            return {k: list(v) for (k, q), v in self.by_frame.items() if q == seq}
+
+
+@pytest.mark.zenoh
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["kill", "stop"])
+def test_the_standby_answers_the_frame_the_owner_left_without_its_next(
+    tmp_path: Path, sig: signal.Signals
+) -> None:
+    group = Group(tmp_path)
+    pubs: list[DetectionPublisher] = []
+    try:
+        for name in ("m-a", "m-b"):
+            group.add(name)
+        with planner_session(group) as session:
+            answers = Answers()
+            sub = session.declare_subscriber("fleet/*/*/tracks", answers.on_tracks)
+            names = [f"slow{i:02d}/radar" for i in range(SENSORS)]
+            pubs = [DetectionPublisher(session, *n.split("/"), classes=("Car",)) for n in names]
+            assert all(p.wait_for_service(10) for p in pubs)
+
+            def put(k: int) -> None:
+                for p in pubs:
+                    p.publish_arrays(moving_cars(k), stamp_ns=time.time_ns())
+
+            for k in range(3):
+                put(k)
+                wait_for(lambda k=k: len(answers.of(k)) == SENSORS, 20, f"frame {k} answered")
+            owners = {n: v[0] for n, v in answers.of(2).items()}
+            victim = max(group.members, key=lambda m: sum(o == m for o in owners.values()))
+            moved = sorted(n for n, o in owners.items() if o == victim)
+            assert moved, owners
+            group.remove(victim).proc.send_signal(sig)
+            put(3)  # on its way to the standby before the owner's token is seen gone
+            sent = time.monotonic()
+
+            def every_frame_answered() -> bool:
+                return len(answers.of(3)) == SENSORS
+
+            try:
+                wait_for(every_frame_answered, ANSWER_S, "frame 3 of every sensor")
+            except AssertionError:
+                missing = sorted(set(names) - set(answers.of(3)))
+                raise AssertionError(
+                    f"unanswered {time.monotonic() - sent:.1f} s after the put, with no next "
+                    f"frame: {missing} (the victim {victim} owned {moved})"
+                ) from None
+            survivor = next(iter(group.members))
+            third = answers.of(3)
+            if sig is signal.SIGKILL:  # the victim may have answered some before it died
+                assert all(survivor in third[n] and len(third[n]) <= 2 for n in moved), third
+            else:  # a hand-off: by the leaving member or by the taker, once
+                assert all(len(third[n]) == 1 for n in moved), third
+            put(4)  # and the sensors go on as before, one answer each
+            wait_for(lambda: len(answers.of(4)) == SENSORS, 20, "frame 4 answered")
+            assert all(v == [survivor] for v in answers.of(4).values())
+            sub.undeclare()
+    finally:
+        for p in pubs:
+            p.close()
+        group.stop_all()
