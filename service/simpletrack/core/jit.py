@@ -7,7 +7,9 @@
   to compile (a cold cache: the first start after an install or a change of the kernels).
 - ``nogil``: a worker thread running a kernel lets the others run theirs on the other cores.
   ``cache``: compiled once per machine (numba's cache beside the source, or the user's cache
-  when that is read-only), loaded in milliseconds afterwards.
+  when that is read-only), loaded in milliseconds afterwards. A kernel's cache entry is named
+  for the sources of its module and of the project's modules it imports: numba alone would
+  keep a kernel's machine code after a callee changed in another file.
 - A kernel may call functions marked ``@helper`` (plain Python functions) and other kernels:
   they are compiled with the kernel, and stay plain Python (or their own kernel) when the
   kernel runs uncompiled.
@@ -18,13 +20,19 @@
 
 from __future__ import annotations
 
+import ast
+import functools
+import hashlib
 import importlib
+import importlib.util
 import os
+import re
 import threading
 import types
 import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Generic, ParamSpec, TypeVar
 
 import numpy as np
@@ -106,10 +114,13 @@ class Kernel(Generic[P, R]):
                     self._impl = _quiet(self.py)
                 else:
                     try:
-                        self._impl = numba.njit(self.signature, **_OPTIONS)(_linked(self.py))
+                        linked = _linked(self.py)
+                        self._impl = numba.njit(self.signature, **_OPTIONS)(linked)
                     except Exception as exc:  # a broken numba or llvmlite: still right, slower
                         _warn(f"compiling {self.py.__qualname__} failed ({exc!r})")
                         self._impl = _quiet(self.py)
+                    else:
+                        _forget_older(self.py, linked)
             return self._impl
 
 
@@ -178,7 +189,7 @@ def cache_state(kernels: Iterable[Kernel[Any, Any]] | None = None) -> CacheState
     cold, location = 0, None
     for k in pending:
         try:
-            cache = caching.FunctionCache(k.py)
+            cache = caching.FunctionCache(_cached_as(k.py, k.py.__globals__))
             location = location or str(cache.cache_path)
             warm = cache._index_key(k.signature, codegen) in cache._cache_file._load_index()
         except Exception:
@@ -227,7 +238,8 @@ def _warn(why: str) -> None:
 
 def _linked(fn: Callable[..., Any]) -> Callable[..., Any]:
     """``fn`` with the helpers it names bound to their numba dispatchers (recursively), as a
-    copy: the module keeps the plain functions for uncompiled use. Call with _lock held."""
+    copy named for its sources (``_cached_as``): the module keeps the plain functions for
+    uncompiled use. Call with _lock held."""
     named = {name: fn.__globals__.get(name) for name in fn.__code__.co_names}
     swaps: dict[str, Any] = {}
     for name, value in named.items():
@@ -235,18 +247,82 @@ def _linked(fn: Callable[..., Any]) -> Callable[..., Any]:
             swaps[name] = _compiled_helper(value.py, "never")
         elif callable(value) and getattr(value, _HELPER_MARK, False):
             swaps[name] = _compiled_helper(value)
-    if not swaps:
-        return fn
-    copy = types.FunctionType(
-        fn.__code__, {**fn.__globals__, **swaps}, fn.__name__, fn.__defaults__, fn.__closure__
-    )
-    copy.__qualname__ = fn.__qualname__
+    return _cached_as(fn, {**fn.__globals__, **swaps})
+
+
+def _cached_as(fn: Callable[..., Any], globals_: dict[str, Any]) -> Callable[..., Any]:
+    """A copy of ``fn`` whose qualified name carries the digest of its module's sources.
+    Numba's cache files are named by it, and numba checks only the function's own file: a
+    kernel keeps the machine code of a callee (or a constant) changed in another file, as
+    after a ``git pull`` that touches ``kalman_kernels.py`` but not ``step_kernels.py``. A
+    new digest is a new cache entry, so such a kernel is compiled again."""
+    copy = types.FunctionType(fn.__code__, globals_, fn.__name__, fn.__defaults__, fn.__closure__)
+    copy.__qualname__ = f"{fn.__qualname__}__{sources_digest(fn.__module__)}"
+    copy.__module__ = fn.__module__
+    copy.__doc__ = fn.__doc__
     return copy
+
+
+def _forget_older(fn: Callable[..., Any], current: Callable[..., Any]) -> None:
+    """Delete the cache files of ``fn`` under other digests (its sources before an edit or
+    an upgrade): nothing loads them again. Best effort: another process may be at it too."""
+    try:
+        caching: Any = importlib.import_module("numba.core.caching")
+        folder = Path(caching.FunctionCache(current).cache_path)
+        stem = Path(fn.__code__.co_filename).stem
+        name = f"{stem}.{fn.__qualname__}".replace("<", "").replace(">", "")
+        mine = f"{stem}.{current.__qualname__}-".replace("<", "").replace(">", "")
+        # Named by a digest, or as before digests were: "<file>.<qualname>[__<digest>]-<line>.py<v>"
+        ours = re.compile(re.escape(name) + r"(__[0-9a-f]{12})?-\d+\.py\d+.*\.nb[ic]")
+        for path in folder.glob(f"{name}*"):
+            if ours.fullmatch(path.name) and not path.name.startswith(mine):
+                path.unlink(missing_ok=True)
+    except Exception:  # numba's cache layout is not public: at worst the files stay
+        return
+
+
+@functools.cache
+def sources_digest(module: str) -> str:
+    """A digest of the module's source and, transitively, of every module of its package
+    (``simpletrack``) it imports at its top level (where kernels get their callees and
+    constants)."""
+    root = module.partition(".")[0]
+    sources: dict[str, bytes] = {}
+
+    def visit(name: str) -> None:
+        if name in sources:
+            return
+        try:
+            spec = importlib.util.find_spec(name)
+            origin = None if spec is None else spec.origin
+            sources[name] = Path(origin).read_bytes() if origin else b""
+            tree = ast.parse(sources[name])
+        except (ImportError, OSError, SyntaxError, ValueError):
+            sources.setdefault(name, b"")
+            return
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                found = [node.module]
+            elif isinstance(node, ast.Import):
+                found = [a.name for a in node.names]
+            else:
+                continue
+            for imported in found:
+                if imported.partition(".")[0] == root:
+                    visit(imported)
+
+    visit(module)
+    digest = hashlib.blake2b(digest_size=6)
+    for name in sorted(sources):
+        digest.update(name.encode() + b"\0" + sources[name] + b"\0")
+    return digest.hexdigest()
 
 
 def _compiled_helper(fn: Callable[..., Any], how: str | None = None) -> Any:
     if fn not in _compiled_helpers:
         # Typed and compiled with the first kernel calling it (or inlined into it).
         inline = how or getattr(fn, _HELPER_MARK)
-        _compiled_helpers[fn] = _numba.njit(inline=inline, **_OPTIONS)(_linked(fn))
+        linked = _linked(fn)
+        _compiled_helpers[fn] = _numba.njit(inline=inline, **_OPTIONS)(linked)
+        _forget_older(fn, linked)
     return _compiled_helpers[fn]
