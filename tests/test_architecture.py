@@ -18,10 +18,14 @@ SOURCES = [ROOT / "service", ROOT / "schemas", ROOT / "clients"]
 CORE_ALLOWED = {
     "numpy", "scipy", "numba", "msgpack", "pydantic",
     "__future__", "dataclasses", "enum", "typing", "collections", "functools", "hashlib", "math",
-    "os", "threading", "types", "warnings", "importlib", "heapq", "itertools",
+    "os", "threading", "types", "warnings", "importlib", "heapq", "itertools", "re", "ast",
+    "pathlib",
 }  # fmt: skip
-# Only the kernel compiler may import numba, and read the environment (SIMPLETRACK_JIT).
-CORE_ONLY_IN = {"numba": "jit.py", "os": "jit.py", "importlib": "jit.py"}
+# Only the kernel compiler may import numba, read the environment (SIMPLETRACK_JIT) and read
+# files (its kernels' sources, whose digest names their cache entries).
+CORE_ONLY_IN = {
+    "numba": "jit.py", "os": "jit.py", "importlib": "jit.py", "ast": "jit.py", "pathlib": "jit.py"
+}  # fmt: skip
 
 # Layer -> the simpletrack layers it may import (itself always). Tools may import anything
 # below the CLI; nothing below the tools may import a tool.
