@@ -16,11 +16,14 @@ import pytest
 import zenoh
 
 from simpletrack.client import DetectionPublisher
-from simpletrack.wire import Rejection, decode_track_frame
+from simpletrack.server.group import ranking
+from simpletrack.wire import Rejection, decode_track_frame, decode_vehicle_track_frame
+from tests.fusion_scenario import CLASSES, WireFrame, frames, write_config
 from tests.scale.fleet import Group, planner_session
 from tests.service_helpers import moving_cars, wait_for
 
 SENSORS = 12
+VEHICLES = 6
 ANSWER_S = 3.0  # a takeover here takes ~0.1 s; the sensors' next frame would never come
 
 
@@ -99,5 +102,77 @@ def test_the_standby_answers_the_frame_the_owner_left_without_its_next(
             sub.undeclare()
     finally:
         for p in pubs:
+            p.close()
+        group.stop_all()
+
+
+def test_a_fused_vehicle_frame_the_owner_left_is_answered_without_its_next(
+    tmp_path: Path,
+) -> None:
+    """The same for fused vehicles (a lidar and a camera each): the frames put at the kill
+    were kept by the vehicle's standby, and are replayed through its reorder window then."""
+    config = write_config(tmp_path)
+    group = Group(tmp_path, args=("--config", str(config)))
+    wire = frames(1.2, 0)
+    before, after = wire[:-2], wire[-2:]  # the last two: one of each sensor
+    assert {f.sensor for f in after} == {"lidar", "camera"}
+    vehicles = [f"fused{v:02d}" for v in range(VEHICLES)]
+    pubs: dict[tuple[str, str], DetectionPublisher] = {}
+    try:
+        for name in ("m-a", "m-b"):
+            group.add(name)
+        with planner_session(group) as session:
+            seqs: dict[str, set[int]] = {v: set() for v in vehicles}
+            lock = threading.Lock()
+
+            def on_vehicle(sample: zenoh.Sample) -> None:
+                out = decode_vehicle_track_frame(sample.payload.to_bytes())
+                assert not isinstance(out, Rejection), out
+                with lock:
+                    seqs[out[0].vehicle].add(out[0].seq)
+
+            def answered(n: int) -> bool:
+                with lock:
+                    return all(s >= set(range(n)) for s in seqs.values())
+
+            sub = session.declare_subscriber("fleet/*/@vehicle/tracks", on_vehicle)
+            for v in vehicles:
+                for f in wire[:2]:
+                    pubs[v, f.sensor] = DetectionPublisher(
+                        session, v, f.sensor, classes=CLASSES, extrinsic=f.extrinsic
+                    )
+            assert all(p.wait_for_service(10) for p in pubs.values())
+            t0 = time.time_ns()
+
+            def put(fs: list[WireFrame], shift_ns: int = 0, paced: bool = True) -> None:
+                # At the stamps' pace from t0 (a fused vehicle's window is of its stamps)
+                for f in fs:
+                    stamp = t0 + f.stamp_ns + shift_ns
+                    if paced:
+                        time.sleep(max(0.0, (stamp - time.time_ns()) * 1e-9))
+                    for v in vehicles:
+                        pubs[v, f.sensor].publish_arrays(f.boxes, stamp_ns=stamp, seq=f.seq)
+
+            put(before)
+            wait_for(lambda: answered(len(before)), 20, "a message for every frame before")
+            owners = {v: ranking(group.members, f"{v}/@vehicle")[0] for v in vehicles}
+            victim = max(group.members, key=lambda m: sum(o == m for o in owners.values()))
+            moved = [v for v in vehicles if owners[v] == victim]
+            assert moved, owners
+            shift = time.time_ns() - (t0 + after[0].stamp_ns)  # the stamps go on from now
+            group.remove(victim).proc.send_signal(signal.SIGKILL)
+            put(after, shift, paced=False)  # both before the standby sees the owner go
+            try:
+                wait_for(lambda: answered(len(wire)), ANSWER_S, "the frames put at the kill")
+            except AssertionError:
+                with lock:
+                    short = {v: sorted(set(range(len(wire))) - s) for v, s in seqs.items()}
+                raise AssertionError(
+                    f"unanswered with no next frame: { {v: q for v, q in short.items() if q} } "
+                    f"(the victim {victim} owned {moved})"
+                ) from None
+            sub.undeclare()
+    finally:
+        for p in pubs.values():
             p.close()
         group.stop_all()

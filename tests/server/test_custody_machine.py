@@ -35,7 +35,8 @@ Guarantees, one table test (or a group) each:
      finished is ignored.
  G13 the group changed: a stream stood by for and owned now, whose kept frames the old
      owner never answered, is asked for at once (those frames wait for no next frame); one
-     whose frames were all answered, or still stood by for, or asked already, is not.
+     whose frames were all answered, or still stood by for, or asked already, or that its
+     sensors' frames no longer go to (its vehicle fuses now), is not.
 """
 
 from __future__ import annotations
@@ -542,3 +543,11 @@ def test_g13_a_stream_just_released_to_a_member_not_seen_yet_is_not_taken_back()
     m.released_as(S, snap(3), "c", 0.0)
     m.frame(S, f(5), view(), 0.5)  # kept: "c" is not in the view yet
     assert m.promoted(lambda _: view(), heard(3), 1.0) == []
+
+
+def test_g13_a_sensor_stream_its_vehicle_fuses_now_is_left_to_the_vehicle() -> None:
+    # Kept as the sensor's own stream before fusion was on in the group: the vehicle's
+    # takeover takes those frames (G11); asking for the sensor's own would publish them twice.
+    m = standby_of(2, 3)
+    assert m.promoted(lambda _: view(), heard(2), 1.0, current=lambda s: s != S) == []
+    assert m.phase(S) is Phase.UNHELD

@@ -144,10 +144,11 @@ class Custody:
         return []
 
     # ------------------------------------------------------------------ taking over
-    def promoted(self) -> Actions:
+    def promoted(self, current: Callable[[str], bool]) -> Actions:
         """The group changed: streams this member stood by for and owns now, with frames the
-        old owner never answered, are asked for at once."""
-        return self.machine.promoted(self.view, self.heard, time.monotonic())
+        old owner never answered, are asked for at once (``current``: the stream's frames
+        go to it now)."""
+        return self.machine.promoted(self.view, self.heard, time.monotonic(), current)
 
     def answered(self, stream: str, replies: Sequence[SensorSnapshot]) -> Actions:
         """The group answered: the machine picks the state, the registry adopts it (its ids

@@ -402,15 +402,20 @@ class CustodyMachine(Generic[F]):
         view_of: Callable[[str], View],
         heard: Callable[[str], Heard | None],
         now: float,
+        current: Callable[[str], bool] = lambda stream: True,
     ) -> list[Action[F]]:
         """The group changed. A stream stood by for that this member owns now, with a kept
         frame newer than the last tracks heard on its key (the owner died, or left, before
         answering it), is asked for now: that frame waits for no other to start the
         takeover (its next frame may be a whole period away, 2 s at 0.5 Hz). The others ask
-        at their next frame, as ever (nothing of theirs waits)."""
+        at their next frame, as ever (nothing of theirs waits). ``current``: whether the
+        stream's frames go to it now; a sensor's own stream kept from before its vehicle
+        fused is not (the vehicle's takeover takes its frames)."""
         acts: list[Action[F]] = []
         for stream, held in self._standby.items():
             if not held.frames or self.phase(stream) is not Phase.UNHELD:
+                continue
+            if not current(stream):
                 continue
             view = view_of(stream)
             if self.role(stream, view, now) is not Role.OWNER:

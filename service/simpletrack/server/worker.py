@@ -397,7 +397,18 @@ class Worker(threading.Thread):
     def group_changed(self) -> None:
         """From the membership's thread: the streams this member now owns with frames their
         old owner never answered are taken over on this worker's thread, at its next turn."""
-        self.queue.put_control(lambda: self._carry(self.custody.promoted()), force=True)
+        self.queue.put_control(
+            lambda: self._carry(self.custody.promoted(self._current)), force=True
+        )
+
+    def _current(self, stream: str) -> bool:
+        """The stream is the one its sensors' frames go to now (fusion's gate decides
+        between a sensor's own stream and its vehicle's)."""
+        vehicle, name = stream.split("/")
+        if not is_vehicle_stream(stream):
+            return self.ctx.stream(vehicle, name) == stream
+        sensors = () if self.ctx.streams is None else self.ctx.streams.sensors
+        return any(self.ctx.stream(vehicle, s) == stream for s in sensors)
 
     def _ask(self, stream: str) -> None:
         """Ask the group for a stream without waiting: its frames wait in the machine and
