@@ -49,6 +49,13 @@ def test_fault_figures_time_the_victim_s_sensors_and_count_frames_around_the_fau
     # after its put for sensor 0 (by m0 at +40), 40 ms for sensor 3 (at +60); sensor 2's
     # never was.
     assert f["first_after_max_ms"] == 40.0 and f["first_after_median_ms"] == 30.0
+    assert f["first_after_slowest"] == {
+        "sensor": 3,
+        "seq": 2,
+        "put_after_fault_ms": 20.0,
+        "answered_after_put_ms": 40.0,
+        "by": "m0",
+    }
     assert f["not_recovered"] == 1
     # Frames put from 1 s before the fault on: seq 1 and 2 of each sensor.
     assert f["window_frames"] == 8

@@ -125,6 +125,7 @@ def fault_figures(
     not_recovered = 0
     served = 0
     first_ms: list[float] = []  # each moved sensor's first frame put after the fault
+    slowest: dict[str, Any] | None = None  # the latest of them, to look it up in the logs
     bystanders: set[int] = set()  # last served by a survivor before the fault
     for sensor, events in by_sensor.items():
         events.sort()
@@ -144,7 +145,16 @@ def fault_figures(
         k = next((k for k, t in enumerate(row) if k >= warm_ticks and t >= fault_ns), None)
         heard = by_frame.get((sensor, k), []) if k is not None else []
         if k is not None and heard:
-            first_ms.append((min(heard)[0] - row[k]) / 1e6)
+            recv, by = min(heard)
+            first_ms.append((recv - row[k]) / 1e6)
+            if slowest is None or first_ms[-1] > slowest["answered_after_put_ms"]:
+                slowest = {
+                    "sensor": sensor,
+                    "seq": k,
+                    "put_after_fault_ms": round((row[k] - fault_ns) / 1e6, 1),
+                    "answered_after_put_ms": first_ms[-1],
+                    "by": by,
+                }
     start = fault_ns - int(BEFORE_FAULT_S * 1e9)
     window = [
         (i, k)
@@ -169,6 +179,10 @@ def fault_figures(
         # wait for each sensor's next frame): how late the first frame after the fault was.
         "first_after_max_ms": round(max(first_ms), 1) if first_ms else None,
         "first_after_median_ms": round(statistics.median(first_ms), 1) if first_ms else None,
+        # Which: the load generator's sensor index and seq (its key: loadgen's naming).
+        "first_after_slowest": None
+        if slowest is None
+        else {**slowest, "answered_after_put_ms": round(slowest["answered_after_put_ms"], 1)},
         "window_frames": len(window),
         "zero_answers": sum(1 for f in window if per_frame[f] == 0),
         "republished": sum(1 for f in window if _republished(by_frame.get(f, []), victim)),
