@@ -515,7 +515,8 @@ def test_g13_frames_that_arrive_while_asked_wait_behind_the_answer() -> None:
         ("still stood by for", heard(2), view(Role.STANDBY), []),
         ("owned by nobody here", heard(2), view(Role.NONE), []),
         ("nothing heard: the owner answered none", nobody, view(), [Ask(S)]),
-        ("alone now", heard(2), view(members=(ME,)), [Resolve(S)]),
+        # The member that left answers its hand-off still: asked, not resolved alone.
+        ("alone now", heard(2), view(members=(ME,)), [Ask(S)]),
     ],
 )
 def test_g13_who_is_asked_for_at_the_change(

@@ -425,8 +425,11 @@ class CustodyMachine(Generic[F]):
                 continue
             s = self._streams.setdefault(stream, _Stream())
             s.phase = Phase.ASKING
-            alone = len(view.members) <= 1 and not self.released
-            acts.append(Resolve(stream) if alone else Ask(stream))
+            # Asked even when alone now: the member that left answers hand-offs after its
+            # token is gone, with its exact state, while its final checkpoint may still wait
+            # in the stream's lane behind this event (an older one would replay, and publish
+            # again, frames planners have).
+            acts.append(Ask(stream))
         return acts
 
     def answered(
