@@ -484,3 +484,16 @@ def test_two_pinned_generator_processes_each_time_their_own_sensors(tmp_path: Pa
     for key in ("loadgen_cores", "put_lateness", "latency", "worst_per_tick_ms", "saturated"):
         assert key in step
     assert len(step["worst_per_tick_ms"]) == 15  # the measured ticks
+
+
+def test_a_frame_answered_and_named_in_a_notice_counts_once_toward_the_wait() -> None:
+    # A failover's notice naming a frame that was tracked too made the count of answers reach
+    # the frames sent while the run's last frame was still on its way back: it was counted
+    # unanswered (bench scale, 1 frame of 3,200 once in a few runs).
+    r = loadgen.Receiver(_spec(2))
+    r.recv_ns[0, 0] = r.recv_ns[1, 0] = 1
+    r.refused[0, 0] = True  # tracked and refused: one answered frame
+    r.received, r.errors = 2, 1
+    assert r.answered() == 2  # of 2 x 10 sent: the wait goes on
+    r.refused[1, 1] = True  # a frame refused alone is answered
+    assert r.answered() == 3

@@ -340,8 +340,12 @@ class Receiver:
                 self.refused[at] = True
 
     def answered(self) -> int:
+        """Frames answered by tracks or a refusal naming them. Not tracks plus errors: a
+        frame both answered and named in a notice (a failover's) counted twice, and the wait
+        for the last answers ended while the run's last frame was still on its way back
+        (it was then counted unanswered)."""
         with self.lock:
-            return self.received + self.errors
+            return int(np.count_nonzero((self.recv_ns != 0) | self.refused))
 
 
 I64 = np.ndarray[Any, np.dtype[np.int64]]
