@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from importlib.metadata import PackageNotFoundError, version
 
-from simpletrack.cli.errors import UserError
+from simpletrack.cli.errors import USAGE_EXIT, UserError
 
 DISTRIBUTION = "simpletrack-service"
 
@@ -102,13 +102,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except UserError as exc:
         print(f"simpletrack {command}: error: {exc}", file=sys.stderr)
-        return 2
+        return USAGE_EXIT
     except ModuleNotFoundError as exc:  # the command's, or an option's imported when used
         hint = extra_hint(exc.name)
         if hint is None:
             raise
         print(f"simpletrack {command}: {hint}", file=sys.stderr)
-        return 2
+        return USAGE_EXIT
     except KeyboardInterrupt:
         return 130
     except BrokenPipeError:  # output piped into head & co.: not an error of ours

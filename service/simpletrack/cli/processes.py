@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any, Literal
 
-from simpletrack.cli.errors import UserError
+from simpletrack.cli.errors import USAGE_EXIT, UserError
 from simpletrack.cli.host_cpus import HostCpus, host_cpus
 from simpletrack.server.logs import EventLogger, get_logger
 from simpletrack.server.settings import ServiceSettings
@@ -51,7 +51,6 @@ CRASH_WINDOW_S = 60.0
 FIRST_BACKOFF_S = 0.5
 MAX_BACKOFF_S = 10.0
 POLL_S = 0.1
-USAGE_EXIT = 2  # simpletrack's exit code for a refused start (cli/main.py, UserError)
 # The flags the supervisor sets per child; the rest are passed on as the user gave them.
 PER_CHILD = frozenset(
     {"processes", "instance", "metrics_port", "state_dir", "zenoh_listen", "zenoh_connect"}
