@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -15,7 +16,7 @@ from simpletrack.core.config import TrackerConfig, preset
 from simpletrack.core.frames import Frame
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
 from simpletrack.core.lifecycle import UpdateKind
-from simpletrack.core.tracker import Tracker
+from simpletrack.core.tracker import STATE_FORMATS, Tracker
 from simpletrack.core.vehicle import Condition, Outcome, SensorInput, VehicleTracker
 from tests.core.fusion_helpers import (
     T0_NS,
@@ -319,7 +320,8 @@ def test_births_from_a_non_key_frame_never_happen_and_ids_are_consecutive() -> N
     assert (r.tracks.tracks.update == UpdateKind.MATCHED).all()
 
 
-def test_the_state_continues_exactly_after_bytes() -> None:
+@pytest.mark.parametrize("state_format", STATE_FORMATS)
+def test_the_state_continues_exactly_after_bytes(state_format: int) -> None:
     world = crossing()
     frames = [world.frame(s, seq, t) for s, seq, t in schedule(2.0)]
     whole = VehicleTracker(tracker_config(), fusion())
@@ -327,7 +329,10 @@ def test_the_state_continues_exactly_after_bytes() -> None:
     half = VehicleTracker(tracker_config(), fusion())
     for f in frames[:20]:
         half.apply(f)
-    resumed = VehicleTracker.from_bytes(half.to_bytes(), tracker_config(), fusion())
+    blob = half.to_bytes(state_format)
+    inner = msgpack.unpackb(msgpack.unpackb(blob, raw=False)["tracker"], raw=False)
+    assert inner["format"] == state_format
+    resumed = VehicleTracker.from_bytes(blob, tracker_config(), fusion())
     for f, want in zip(frames[20:], outs[20:], strict=True):
         got = resumed.apply(f)
         assert got.outcome is want.outcome

@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -43,16 +44,27 @@ def send_range(cli: Client, sensor: str, first: int, last: int) -> None:
         cli.send("veh", sensor, seq=k, stamp_ns=stamp(k), boxes=crossing(k))  # type: ignore[arg-type]
 
 
+def tracker_state_format(path: Path) -> int:
+    """The byte form of the tracker state in a snapshot file (core/tracker.py)."""
+    snap = decode_message(path.read_bytes(), SensorSnapshot)
+    assert not isinstance(snap, Rejection) and snap.tracker is not None
+    return int(msgpack.unpackb(snap.tracker, raw=False)["format"])
+
+
 def test_sigterm_mid_sequence_then_restart_equals_an_uninterrupted_run(tmp_path: Path) -> None:
+    """Also across the two state formats: the first instance is pinned to the form of the
+    versions before compact states (a rolling upgrade), the second reads it and writes its own."""
     state = tmp_path / "state"
     n, cut = 24, 11
-    a = start_service(tmp_path, "--state-dir", str(state), instance="svc-a")
+    a = start_service(
+        tmp_path, "--state-dir", str(state), instance="svc-a", env={"SIMPLETRACK_STATE_FORMAT": "1"}
+    )
     with client(a.endpoint) as cli:
         send_range(cli, "cut", 0, cut)
         wait_for(lambda: cli.received.n_tracks("veh/cut") == cut, 20, "first half")
         first = list(cli.received.tracks["veh/cut"])
     assert a.stop(signal.SIGTERM) == 0
-    assert (state / "veh" / "cut.snap").is_file()
+    assert tracker_state_format(state / "veh" / "cut.snap") == 1
 
     b = start_service(tmp_path, "--state-dir", str(state), instance="svc-b")
     try:
@@ -72,6 +84,7 @@ def test_sigterm_mid_sequence_then_restart_equals_an_uninterrupted_run(tmp_path:
         assert metric(b.metrics(), "simpletrack_sensors_restored_total") == 1
     finally:
         assert b.stop() == 0
+    assert tracker_state_format(state / "veh" / "cut.snap") == 2
     assert [f.seq for f, _ in resumed] == list(range(n))
     assert any(len(t) for _, t in resumed[cut:])
     ids = {int(i) for _, t in resumed for i in t.id}

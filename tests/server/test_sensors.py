@@ -298,7 +298,8 @@ def test_undo_puts_the_tracks_back_and_keeps_the_ids_of_the_undone_frame_used() 
 def test_snapshot_without_tracker_reserves_the_ids() -> None:
     s = _state()
     s.tracker.step(Frame(boxes=_cars(2, 0.0), stamp=0.0))
-    full, reservation = s.snapshot("d"), s.snapshot("d", with_tracker=False)
+    full = s.snapshot("d", state_format=2)
+    reservation = s.snapshot("d", with_tracker=False, state_format=2)
     assert full.tracker is not None and (full.id_base, full.id_next) == (10, 12)
     assert reservation.tracker is None and (reservation.id_base, reservation.id_next) == (12, 12)
 

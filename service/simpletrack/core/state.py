@@ -76,8 +76,11 @@ class TrackTable:
             *(np.concatenate([getattr(self, name), getattr(other, name)]) for name in _FIELDS)
         )
 
-    def to_msgpack_obj(self) -> dict[str, Any]:
-        return {name: _pack_array(getattr(self, name)) for name in _FIELDS}
+    def to_msgpack_obj(self, compact: bool) -> dict[str, Any]:
+        """``compact``: a column's cells that are zero in every track are left out (most of
+        a covariance: 16 of its 100 cells are ever set). The same arrays, bit for bit, come
+        back; a reader from before compact states cannot read one (``Tracker.to_bytes``)."""
+        return {name: _pack_array(getattr(self, name), compact) for name in _FIELDS}
 
     @classmethod
     def from_msgpack_obj(cls, obj: dict[str, Any]) -> TrackTable:
@@ -105,19 +108,45 @@ _DTYPES = {name: getattr(TrackTable.empty(), name).dtype for name in _FIELDS}
 _ADDED = {"match_score": "score", "t_birth": "t_update"}
 
 
-def _pack_array(a: npt.NDArray[Any]) -> dict[str, Any]:
+def _pack_array(a: npt.NDArray[Any], compact: bool = False) -> dict[str, Any]:
+    """``compact``: for a table of rows (2 or more dimensions), only the cells of a row that
+    some row has a nonzero bit in (``cells``, indices into the flattened row); the others are
+    +0.0 (or 0) in every row, which is how they come back."""
     a = np.ascontiguousarray(a)
-    return {
-        "dtype": a.dtype.newbyteorder("<").str,
-        "shape": list(a.shape),
-        "data": a.astype(a.dtype.newbyteorder("<")).tobytes(),
-    }
+    little = a.dtype.newbyteorder("<")
+    out: dict[str, Any] = {"dtype": little.str, "shape": list(a.shape)}
+    if compact and a.ndim >= 2 and a.shape[0] and a.dtype.itemsize in (1, 2, 4, 8):
+        rows = a.reshape(a.shape[0], -1)
+        # By bits, not by value: a -0.0 is kept (it equals 0.0 but is not all zero bits).
+        cells = np.flatnonzero(rows.view(f"u{a.dtype.itemsize}").any(axis=0))
+        if cells.size < rows.shape[1]:
+            out["cells"] = cells.tolist()
+            out["data"] = rows[:, cells].astype(little).tobytes()
+            return out
+    out["data"] = a.astype(little).tobytes()
+    return out
 
 
 def _unpack_array(obj: dict[str, Any]) -> npt.NDArray[Any]:
     dtype = np.dtype(obj["dtype"])
-    arr = np.frombuffer(obj["data"], dtype=dtype).reshape(obj["shape"])
-    return arr.astype(dtype.newbyteorder("="))
+    shape = [int(n) for n in obj["shape"]]
+    cells = obj.get("cells")
+    if cells is None:
+        arr = np.frombuffer(obj["data"], dtype=dtype).reshape(shape)
+        return arr.astype(dtype.newbyteorder("="))
+    width = int(np.prod(shape[1:], dtype=np.int64)) if len(shape) >= 2 else 0
+    index = np.asarray(cells, dtype=np.int64)
+    if (
+        len(shape) < 2
+        or index.ndim != 1
+        or (index.size and (index[0] < 0 or index[-1] >= width))
+        or np.any(np.diff(index) <= 0)
+    ):
+        raise ValueError(f"compact array of shape {shape} with cells {cells!r}")
+    kept = np.frombuffer(obj["data"], dtype=dtype).reshape(shape[0], index.size)
+    rows = np.zeros((shape[0], width), dtype=dtype.newbyteorder("="))
+    rows[:, index] = kept
+    return rows.reshape(shape)
 
 
 def pack(obj: dict[str, Any]) -> bytes:

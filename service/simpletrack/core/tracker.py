@@ -79,7 +79,11 @@ from simpletrack.core.step_kernels import (
 )
 from simpletrack.core.step_kernels import MAX_AGE as ASSOC_MAX_AGE
 
-STATE_FORMAT = 1
+# The byte form of a tracker's state: 1 writes every cell of every column, 2 leaves out the
+# cells that are zero in every track (a third of the bytes with a Kalman filter's covariance).
+# Both are read; a reader from before 2 refuses a state of 2 ("unsupported ... format").
+STATE_FORMAT = 2
+STATE_FORMATS = (1, 2)
 _POLICY_CODES = {
     OutputPolicy.PAPER: POLICY_PAPER,
     OutputPolicy.REFERENCE: POLICY_REFERENCE,
@@ -690,23 +694,26 @@ class Tracker:
         )
 
     # ------------------------------------------------------------------ persistence
-    def to_bytes(self) -> bytes:
-        """Everything needed to continue exactly where this tracker is."""
+    def to_bytes(self, state_format: int = STATE_FORMAT) -> bytes:
+        """Everything needed to continue exactly where this tracker is, in ``state_format``
+        (one of ``STATE_FORMATS``: 1 for readers from before format 2)."""
+        if state_format not in STATE_FORMATS:
+            raise ValueError(f"state_format must be one of {STATE_FORMATS}: {state_format!r}")
         return pack(
             {
-                "format": STATE_FORMAT,
+                "format": state_format,
                 "config": self.config.model_dump_json(),
                 "frame_count": self.frame_count,
                 "next_id": self.next_id,
                 "last_stamp": self.last_stamp,
-                "tracks": self.tracks.to_msgpack_obj(),
+                "tracks": self.tracks.to_msgpack_obj(compact=state_format >= 2),
             }
         )
 
     @classmethod
     def from_bytes(cls, blob: bytes) -> Tracker:
         obj = unpack(blob)
-        if obj.get("format") != STATE_FORMAT:
+        if obj.get("format") not in STATE_FORMATS:
             raise ValueError(f"unsupported tracker state format {obj.get('format')!r}")
         tracker = cls(TrackerConfig.model_validate_json(obj["config"]))
         tracker.frame_count = int(obj["frame_count"])

@@ -54,6 +54,7 @@ from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import KalmanFilter, predicted_boxes
 from simpletrack.core.occlusion import occlusion
 from simpletrack.core.state import TrackTable, pack, unpack
+from simpletrack.core.tracker import STATE_FORMAT as TRACKER_STATE_FORMAT
 from simpletrack.core.tracker import Tracker
 
 F64 = npt.NDArray[np.float64]
@@ -718,15 +719,16 @@ class VehicleTracker:
         return StepResult(Outcome.REPROCESSED, detail=f"{len(redo)} frames re-applied after it")
 
     # ------------------------------------------------------------------ persistence
-    def to_bytes(self) -> bytes:
+    def to_bytes(self, state_format: int = TRACKER_STATE_FORMAT) -> bytes:
         """Everything to continue exactly where this vehicle is, but the re-processing
-        history (a frame older than a restored state is refused as late)."""
+        history (a frame older than a restored state is refused as late); its tracker's
+        tracks in ``state_format`` (``Tracker.to_bytes``)."""
         c = self.cols
         return pack(
             {
                 "format": STATE_FORMAT,
                 "sensors": list(self.sensors),
-                "tracker": self.tracker.to_bytes(),
+                "tracker": self.tracker.to_bytes(state_format),
                 "misses": _arr(c.misses),
                 "stamp_ns": _arr(c.stamp_ns),
                 "last_kind": _arr(c.last_kind),

@@ -307,7 +307,7 @@ class Custody:
             return None if rel is None else rel.snapshot
         self.machine.release_asked(key, to, held=True)
         self.before_release(key)
-        snap = state.snapshot(self.registry.digest)
+        snap = self.registry.state_of(state)
         # Released first, then gone: a question read without the lock (app.py) must never
         # see the sensor neither held nor released.
         self.machine.released_as(key, snap, to, time.monotonic())
@@ -326,7 +326,7 @@ class Custody:
         state = self.registry.get(stream)
         if state is None:
             return None
-        snap = state.snapshot(self.registry.digest)
+        snap = self.registry.state_of(state)
         vehicle, sensor = stream.split("/")
         self.machine.stashed(stream, snap, self.outbox.last.get((vehicle, sensor)))
         self.registry.release(stream)
@@ -359,9 +359,7 @@ class Custody:
             first = last is None or last[0] != standby  # this standby has no state of it
             if not (final or first or (last != mark and not new_standby_only)):
                 continue
-            if not self._put_checkpoint(
-                standby, s.vehicle, s.sensor, s.snapshot(self.registry.digest)
-            ):
+            if not self._put_checkpoint(standby, s.vehicle, s.sensor, self.registry.state_of(s)):
                 continue
             s.checkpoint_mark = mark
             sent += 1
@@ -371,16 +369,18 @@ class Custody:
 
     def _put_checkpoint(self, to: str, vehicle: str, sensor: str, snap: SensorSnapshot) -> bool:
         sh = self.shared
+        payload = encode(snap)
         try:
             sh.session.put(
                 sh.keys.checkpoint(to, vehicle, sensor),
-                encode(snap),
+                payload,
                 encoding=MSGPACK,
                 congestion_control=zenoh.CongestionControl.BLOCK,
             )
         except zenoh.ZError as e:
             log.warning("checkpoint_failed", vehicle=vehicle, sensor=sensor, error=str(e))
             return False
+        sh.metrics.checkpoint_bytes.inc(len(payload))
         return True
 
     def housekeeping(self) -> None:

@@ -246,6 +246,11 @@ class Metrics:
             "Sensor states sent to their standby member",
             registry=r,
         )
+        self.checkpoint_bytes = Counter(
+            "simpletrack_checkpoint_bytes",
+            "Bytes of the sensor states sent to other members (checkpoints, pushed hand-offs)",
+            registry=r,
+        )
         for direction in ("in", "out"):
             self.handoffs.labels(direction=direction)
         self.fusion_frames = Counter(

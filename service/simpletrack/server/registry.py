@@ -18,7 +18,7 @@ from collections.abc import Callable
 from enum import Enum
 from pathlib import Path
 
-from simpletrack.core.tracker import Tracker
+from simpletrack.core.tracker import STATE_FORMAT, Tracker
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.sensors import Arrival, SensorBudget, SensorState
@@ -64,10 +64,12 @@ class SensorRegistry:
         new_vehicle: Callable[[str, int], VehicleState] | None = None,
         vehicle_of: Callable[[SensorSnapshot], VehicleState] | None = None,
         vehicle_digest: str = "",
+        state_format: int = STATE_FORMAT,
     ) -> None:
         """``new_vehicle(vehicle, id_floor)`` and ``vehicle_of(snapshot)`` make the fused
         vehicles' states (server/vehicles.py); ``vehicle_digest`` is what their snapshots
-        must carry to be restored."""
+        must carry to be restored; ``state_format`` the trackers' byte form in the states it
+        writes (``core.tracker.STATE_FORMATS``)."""
         self.budget, self.metrics, self.new_tracker, self.digest = (
             budget,
             metrics,
@@ -78,6 +80,7 @@ class SensorRegistry:
         self.reclaim_after_s = reclaim_after_s
         self.new_vehicle, self.vehicle_of = new_vehicle, vehicle_of
         self.vehicle_digest = vehicle_digest
+        self.state_format = state_format
         self.sensors: dict[str, Stream] = {}
         self.retired: dict[str, int] = {}  # evicted sensor -> lowest unused id
         # stream -> the custody epoch a takeover gave it, for the state ``add`` creates
@@ -332,7 +335,7 @@ class SensorRegistry:
             return
         files = []
         for s, with_tracker in items:
-            snap = s.snapshot(self.digest, with_tracker)
+            snap = self.state_of(s, with_tracker)
             files.append((snapshot_path(self.state_dir, s.vehicle, s.sensor), encode_message(snap)))
             s.dirty = False
         metrics = self.metrics
@@ -349,7 +352,11 @@ class SensorRegistry:
     def snapshot_of(self, vehicle: str, sensor: str) -> SensorSnapshot | None:
         """Only from the worker's thread (it owns the trackers): via ``queue.put_control``."""
         s = self.sensors.get(f"{vehicle}/{sensor}")
-        return None if s is None else s.snapshot(self.digest)
+        return None if s is None else self.state_of(s)
+
+    def state_of(self, s: Stream, with_tracker: bool = True) -> SensorSnapshot:
+        """A held stream's state as this member writes it (checkpoints, hand-offs, disk)."""
+        return s.snapshot(self.digest, with_tracker, state_format=self.state_format)
 
     # ------------------------------------------------------------------ status
     def status(self) -> list[SensorStatus]:

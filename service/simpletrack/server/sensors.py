@@ -165,7 +165,10 @@ class SensorState:
             return 0.0
         return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)
 
-    def snapshot(self, digest: str, with_tracker: bool = True) -> SensorSnapshot:
+    def snapshot(
+        self, digest: str, with_tracker: bool = True, *, state_format: int
+    ) -> SensorSnapshot:
+        """``state_format``: the tracker's byte form (``core.tracker.STATE_FORMATS``)."""
         last = self.last
         return SensorSnapshot(
             schema_version=SCHEMA_VERSION,
@@ -180,7 +183,7 @@ class SensorState:
             last_received_ns=None if last is None else last.received_ns,
             last_session_id=None if last is None else last.session_id,
             config_digest=digest,
-            tracker=self.tracker.to_bytes() if with_tracker else None,
+            tracker=self.tracker.to_bytes(state_format) if with_tracker else None,
             written_ns=time.time_ns(),
             epoch=self.epoch,
         )

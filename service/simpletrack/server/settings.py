@@ -367,6 +367,10 @@ class ServiceSettings(BaseSettings):
         default=1.0,
         description="how often an owner sends each changed sensor's state to its standby member",
     )
+    state_format: Annotated[int, Field(ge=1, le=2)] = Field(
+        default=2,
+        description="the byte form of the tracker states this member sends (checkpoints, hand-offs) and writes to state_dir: 2 leaves out what is zero in every track (a third of the bytes), 1 is the form of versions before it, which cannot read 2; set 1 while a rolling upgrade from such a version is under way",
+    )
     standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
         default=100,
         description="frames per sensor a standby member keeps since the last checkpoint (replayed at a takeover)",

@@ -215,7 +215,9 @@ class VehicleState:
             return 0.0
         return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-9)
 
-    def snapshot(self, _digest: str = "", with_tracker: bool = True) -> SensorSnapshot:
+    def snapshot(
+        self, _digest: str = "", with_tracker: bool = True, *, state_format: int
+    ) -> SensorSnapshot:
         """The stream's state as a ``SensorSnapshot`` of sensor ``@vehicle``; the frames
         waiting in the reorder buffer are not in it (a takeover replays them)."""
         last = self.last
@@ -224,13 +226,13 @@ class VehicleState:
             blob = msgpack.packb(
                 {
                     "format": STATE_FORMAT,
-                    "vehicle": self.tracker.to_bytes(),
+                    "vehicle": self.tracker.to_bytes(state_format),
                     "arrivals": {s: _arrival_obj(a) for s, a in self.taken.items()},
                     "last": None if last is None else _arrival_obj(last),
                     "frame": self.frame,
                     "frames": self.frames,
                     "per_sensor": {
-                        s: encode_message(st.snapshot(self.digest))
+                        s: encode_message(st.snapshot(self.digest, state_format=state_format))
                         for s, st in self.per_sensor.items()
                     },
                 },

@@ -152,6 +152,7 @@ class Worker(threading.Thread):
             new_vehicle=self._new_vehicle if ctx.fusion is not None else None,
             vehicle_of=self._vehicle_of if ctx.fusion is not None else None,
             vehicle_digest=ctx.vehicle_digest,
+            state_format=s.state_format,
         )
         self.fused = FusedFrames(self)
         self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance, ctx.announcer)
