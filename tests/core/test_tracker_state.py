@@ -123,6 +123,7 @@ def test_format_2_leaves_out_cells_zero_in_every_track_and_restores_them_bit_for
         ({"cells": [0, 7, 100]}, "past the row"),
         ({"cells": [7, 0]}, "not increasing"),
         ({"cells": [-1, 0]}, "negative"),
+        ({"cells": [], "data": b"", "shape": [10**9, 10, 10]}, "rows the data does not bound"),
         ({"data": b"\0" * 8}, "too few values"),
     ],
 )

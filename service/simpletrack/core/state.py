@@ -119,6 +119,8 @@ def _pack_array(a: npt.NDArray[Any], compact: bool = False) -> dict[str, Any]:
         rows = a.reshape(a.shape[0], -1)
         # By bits, not by value: a -0.0 is kept (it equals 0.0 but is not all zero bits).
         cells = np.flatnonzero(rows.view(f"u{a.dtype.itemsize}").any(axis=0))
+        # At least one cell, so that the data's length bounds the rows a reader allocates.
+        cells = cells if cells.size else np.zeros(1, dtype=np.intp)
         if cells.size < rows.shape[1]:
             out["cells"] = cells.tolist()
             out["data"] = rows[:, cells].astype(little).tobytes()
@@ -139,7 +141,9 @@ def _unpack_array(obj: dict[str, Any]) -> npt.NDArray[Any]:
     if (
         len(shape) < 2
         or index.ndim != 1
-        or (index.size and (index[0] < 0 or index[-1] >= width))
+        or index.size == 0
+        or index[0] < 0
+        or index[-1] >= width
         or np.any(np.diff(index) <= 0)
     ):
         raise ValueError(f"compact array of shape {shape} with cells {cells!r}")
