@@ -106,7 +106,9 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             for m in survivors:  # every state sent is counted in bytes too (a KITTI tracker's: KBs)
                 values = m.metrics()
                 sent = metric(values, "simpletrack_checkpoints_sent_total")
-                assert sent > 0 and metric(values, "simpletrack_checkpoint_bytes_total") > 500 * sent
+                assert (
+                    sent > 0 and metric(values, "simpletrack_checkpoint_bytes_total") > 500 * sent
+                )
             assert planner.instances(back_ns)["m-a"] > 0, (
                 "the restarted member got nothing back",
                 f"stopped at frame {back_k}, ready at {ready_k} of {n}",
