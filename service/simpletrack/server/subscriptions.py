@@ -42,7 +42,6 @@ ADV_TOKENS = "@adv/pub/**"
 # vehicle's cache as a wide one does; a plain sensor's scout may have left (the next one
 # announces it again at its next frame).
 GRACE_S = 30.0
-NEW_SENSOR_S = 5.0  # a sensor first published this recently takes its vehicle's whole cache
 # A plain sensor's gate opens once the scout's copies meet the frames heard here (no frame
 # between them), or after QUIET_S without a frame here; at the latest after VERIFY_S.
 QUIET_S, VERIFY_S, RETRY_S = 0.05, 2.0, 0.01
@@ -139,6 +138,37 @@ def release(
             held.lock.release()
 
 
+class NewSensors:
+    """The sensors first published while this member runs (their first token came after the
+    start settled) and not yet subscribed here. Such a sensor's subscription takes its
+    vehicle's whole cache, however late it comes: nobody can have heard those frames, and a
+    subscription delayed past any bound (a loaded member) must not lose them silently. A
+    sensor found another member's leaves the set: a takeover of it later is the custody
+    machine's (the standby's frames, the cache for a gap), as for any other. No clock, no
+    lock (its owner's)."""
+
+    def __init__(self) -> None:
+        self._known: set[str] = set()  # sensors ever published with a token while running
+        self._new: set[str] = set()
+
+    def token(self, sensor: str, *, running: bool, back: bool) -> None:
+        """A publisher's token of ``sensor`` appeared; ``running``: after the start settled;
+        ``back``: the sensor had lost every token (a router's outage), it is not new."""
+        if running and not back and sensor not in self._known:
+            self._new.add(sensor)
+        self._known.add(sensor)
+
+    def others(self, sensors: set[str]) -> None:
+        """``sensors`` (with tokens) are not this member's to hear."""
+        self._new -= sensors
+
+    def take(self, sensor: str) -> bool:
+        """Subscribing to ``sensor`` now: does the subscription take the whole cache?"""
+        fresh = sensor in self._new
+        self._new.discard(sensor)
+        return fresh
+
+
 class Subscriptions:
     def __init__(
         self,
@@ -163,7 +193,6 @@ class Subscriptions:
         self._plain: dict[str, set[str]] = {}  # vehicle/sensor -> scouts' plain tokens
         self._adv_lost: dict[str, float] = {}  # sensor -> when its vehicle's last token went
         self._plain_lost: dict[str, float] = {}  # sensor -> when its scouts' last token went
-        self._known: set[str] = set()  # sensors ever published with a token while running
         self._subs: dict[str, tuple[Any, ...]] = {}  # vehicle/sensor -> its entities
         self._plain_subs: set[str] = set()  # the sensors of _subs subscribed as plain
         self._track_subs: dict[str, Any] = {}  # stream -> its tracks subscriber
@@ -175,7 +204,7 @@ class Subscriptions:
         self._token_sub: Any = None
         self._plain_sub: Any = None
         self._started: float | None = None  # settled at start: tokens seen later are new
-        self._new: dict[str, float] = {}  # sensor -> when its vehicle's first token came
+        self._new = NewSensors()  # under _lock
         self.scout = (
             Scout(
                 session,
@@ -243,9 +272,7 @@ class Subscriptions:
             tokens = self._tokens.setdefault(sensor, set())
             if sample.kind == zenoh.SampleKind.PUT:
                 back = self._adv_lost.pop(sensor, None) is not None
-                if not back and sensor not in self._known and self._started is not None:
-                    self._new[sensor] = time.monotonic()
-                self._known.add(sensor)
+                self._new.token(sensor, running=self._started is not None, back=back)
                 tokens.add(key)
             else:
                 tokens.discard(key)
@@ -327,6 +354,8 @@ class Subscriptions:
             time.sleep(GATHER_S)
             tokened, plain = self._published()
         wanted = self._wanted(tokened | plain)
+        with self._lock:
+            self._new.others(tokened - wanted)
         # A plain sensor whose vehicle now holds a token is subscribed again, advanced.
         changed = {s for s in self._plain_subs if s in tokened}
         for sensor in [s for s in self._subs if s not in wanted or s in changed]:
@@ -356,8 +385,7 @@ class Subscriptions:
         ``history_frames`` (the custody machine skips what a state already holds)."""
         vehicle, name = sensor.split("/")
         with self._lock:
-            since = self._new.pop(sensor, None)
-        fresh = since is not None and time.monotonic() - since < NEW_SENSOR_S
+            fresh = self._new.take(sensor)
         sub = ext.declare_advanced_subscriber(
             self.session,
             self.keys.detections(vehicle, name),
