@@ -80,7 +80,7 @@ class TrackTable:
         """``compact``: a column's cells that are zero in every track are left out (most of
         a covariance: 16 of its 100 cells are ever set). The same arrays, bit for bit, come
         back; a reader from before compact states cannot read one (``Tracker.to_bytes``)."""
-        return {name: _pack_array(getattr(self, name), compact) for name in _FIELDS}
+        return {name: pack_array(getattr(self, name), compact) for name in _FIELDS}
 
     @classmethod
     def from_msgpack_obj(cls, obj: dict[str, Any]) -> TrackTable:
@@ -91,7 +91,7 @@ class TrackTable:
         # In the dtypes the compiled step is typed for, whatever wrote the snapshot.
         return cls(
             *(
-                _unpack_array(obj[name if name in obj else _ADDED[name]]).astype(
+                unpack_array(obj[name if name in obj else _ADDED[name]]).astype(
                     _DTYPES[name], copy=False
                 )
                 for name in _FIELDS
@@ -108,8 +108,8 @@ _DTYPES = {name: getattr(TrackTable.empty(), name).dtype for name in _FIELDS}
 _ADDED = {"match_score": "score", "t_birth": "t_update"}
 
 
-def _pack_array(a: npt.NDArray[Any], compact: bool = False) -> dict[str, Any]:
-    """``compact``: for a table of rows (2 or more dimensions), only the cells of a row that
+def pack_array(a: npt.NDArray[Any], compact: bool = False) -> dict[str, Any]:
+    """An array as a msgpack map (dtype, shape, little-endian bytes). ``compact``: for a table of rows (2 or more dimensions), only the cells of a row that
     some row has a nonzero bit in (``cells``, indices into the flattened row); the others are
     +0.0 (or 0) in every row, which is how they come back."""
     a = np.ascontiguousarray(a)
@@ -129,7 +129,7 @@ def _pack_array(a: npt.NDArray[Any], compact: bool = False) -> dict[str, Any]:
     return out
 
 
-def _unpack_array(obj: dict[str, Any]) -> npt.NDArray[Any]:
+def unpack_array(obj: dict[str, Any]) -> npt.NDArray[Any]:
     dtype = np.dtype(obj["dtype"])
     shape = [int(n) for n in obj["shape"]]
     cells = obj.get("cells")

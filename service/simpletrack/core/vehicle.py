@@ -53,7 +53,7 @@ from simpletrack.core.kalman_kernels import predict_all
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import KalmanFilter, predicted_boxes
 from simpletrack.core.occlusion import occlusion
-from simpletrack.core.state import TrackTable, pack, unpack
+from simpletrack.core.state import TrackTable, pack, pack_array, unpack, unpack_array
 from simpletrack.core.tracker import STATE_FORMAT as TRACKER_STATE_FORMAT
 from simpletrack.core.tracker import Tracker
 
@@ -729,11 +729,11 @@ class VehicleTracker:
                 "format": STATE_FORMAT,
                 "sensors": list(self.sensors),
                 "tracker": self.tracker.to_bytes(state_format),
-                "misses": _arr(c.misses),
-                "stamp_ns": _arr(c.stamp_ns),
-                "last_kind": _arr(c.last_kind),
-                "log_odds": _arr(c.log_odds),
-                "occluded": _arr(c.occluded),
+                "misses": pack_array(c.misses),
+                "stamp_ns": pack_array(c.stamp_ns),
+                "last_kind": pack_array(c.last_kind),
+                "log_odds": pack_array(c.log_odds),
+                "occluded": pack_array(c.occluded),
                 "origin_ns": self.origin_ns,
                 "last_ns": self.last_ns,
                 "last_key": None if self.last_key is None else list(self.last_key),
@@ -760,11 +760,11 @@ class VehicleTracker:
         v.tracker.tracks, v.tracker.frame_count = inner.tracks, inner.frame_count
         v.tracker.next_id, v.tracker.last_stamp = inner.next_id, inner.last_stamp
         v.cols = FusedColumns(
-            _unarr(obj["misses"]).astype(np.int32),
-            _unarr(obj["stamp_ns"]).astype(np.int64),
-            _unarr(obj["last_kind"]).astype(np.int8),
-            _unarr(obj["log_odds"]).astype(np.float64),
-            _unarr(obj["occluded"]).astype(np.int32),
+            unpack_array(obj["misses"]).astype(np.int32),
+            unpack_array(obj["stamp_ns"]).astype(np.int64),
+            unpack_array(obj["last_kind"]).astype(np.int8),
+            unpack_array(obj["log_odds"]).astype(np.float64),
+            unpack_array(obj["occluded"]).astype(np.int32),
         )
         v.origin_ns, v.last_ns, v.seq = obj["origin_ns"], obj["last_ns"], int(obj["seq"])
         key = obj["last_key"]
@@ -935,30 +935,15 @@ def _concat(a: FusedColumns, b: FusedColumns) -> FusedColumns:
     )
 
 
-def _arr(a: npt.NDArray[Any]) -> dict[str, Any]:
-    a = np.ascontiguousarray(a)
-    return {"dtype": a.dtype.newbyteorder("<").str, "shape": list(a.shape),
-            "data": a.astype(a.dtype.newbyteorder("<")).tobytes()}  # fmt: skip
-
-
-def _unarr(obj: dict[str, Any]) -> npt.NDArray[Any]:
-    dtype = np.dtype(obj["dtype"])
-    return (
-        np.frombuffer(obj["data"], dtype=dtype)
-        .reshape(obj["shape"])
-        .astype(dtype.newbyteorder("="))
-    )
-
-
 def _record_obj(r: SensorRecord) -> dict[str, Any]:
     m = r.monitor
     return {
         "condition": r.condition.value, "detail": r.detail, "last_seq": r.last_seq,
         "last_stamp_ns": r.last_stamp_ns, "frames": r.frames, "kept_out": r.kept_out,
         "agreed": r.agreed, "too_old": r.too_old, "source": r.source,
-        "votes": _arr(m.votes), "normal": _arr(m.normal), "rhs": _arr(m.rhs),
-        "sums": _arr(m.sums),
-        "transform": None if r.transform is None else _arr(r.transform),
+        "votes": pack_array(m.votes), "normal": pack_array(m.normal), "rhs": pack_array(m.rhs),
+        "sums": pack_array(m.sums),
+        "transform": None if r.transform is None else pack_array(r.transform),
     }  # fmt: skip
 
 
@@ -973,8 +958,10 @@ def _record_of(o: dict[str, Any]) -> SensorRecord:
         agreed=int(o["agreed"]),
         too_old=int(o["too_old"]),
         source=str(o["source"]),
-        transform=None if o["transform"] is None else _unarr(o["transform"]),
-        monitor=calibration.MonitorState(_unarr(o["votes"]), _unarr(o["normal"]), _unarr(o["rhs"])),
+        transform=None if o["transform"] is None else unpack_array(o["transform"]),
+        monitor=calibration.MonitorState(
+            unpack_array(o["votes"]), unpack_array(o["normal"]), unpack_array(o["rhs"])
+        ),
     )
 
 

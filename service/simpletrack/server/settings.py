@@ -47,6 +47,7 @@ from pydantic_settings import (
 
 from simpletrack.core.config import PRESETS, TrackerConfig, preset
 from simpletrack.core.fusion_config import FusionConfig, SensorTrust
+from simpletrack.core.tracker import STATE_FORMAT, STATE_FORMATS
 from simpletrack.core.vehicle import check_fusable
 from simpletrack.server.messages import Where, format_error
 from simpletrack.server.tracker_settings import (
@@ -367,8 +368,8 @@ class ServiceSettings(BaseSettings):
         default=1.0,
         description="how often an owner sends each changed sensor's state to its standby member",
     )
-    state_format: Annotated[int, Field(ge=1, le=2)] = Field(
-        default=2,
+    state_format: Annotated[int, Field(ge=min(STATE_FORMATS), le=max(STATE_FORMATS))] = Field(
+        default=STATE_FORMAT,
         description="the byte form of the tracker states this member sends (checkpoints, hand-offs) and writes to state_dir: 2 leaves out what is zero in every track (a third of the bytes), 1 is the form of versions before it, which cannot read 2; set 1 while a rolling upgrade from such a version is under way",
     )
     standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
