@@ -22,17 +22,9 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
+from simpletrack.session import ZenohOptions
+
 PAYLOAD = b"x" * 10_000
-
-
-def config(listen: str | None = None, connect: str | None = None) -> zenoh.Config:
-    c = zenoh.Config()
-    c.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        c.insert_json5("listen/endpoints", f'["{listen}"]')
-    if connect:
-        c.insert_json5("connect/endpoints", f'["{connect}"]')
-    return c
 
 
 def key(i: int, what: str) -> str:
@@ -40,7 +32,7 @@ def key(i: int, what: str) -> str:
 
 
 def fleet(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: float) -> None:
-    session = zenoh.open(config(connect=endpoint))
+    session = zenoh.open(ZenohOptions(connect=[endpoint]).to_config())
     pubs: list[Any] = []
     for i in range(sensors):
         if heartbeat > 0:
@@ -68,7 +60,7 @@ def fleet(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: f
 
 
 def member(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: float) -> str:
-    session = zenoh.open(config(listen=endpoint))
+    session = zenoh.open(ZenohOptions(listen=[endpoint]).to_config())
     heard = [0]
 
     def count(_: zenoh.Sample) -> None:
