@@ -10,7 +10,8 @@ holds a tracks subscriber and a miss listener per stream, so this is per stream 
 - ``cpu``: ``--subscribers`` plain subscribers hearing 10 KB messages at 10 Hz each from a
   child process (``zenoh_heartbeat_cost.py``'s fleet, without heartbeats); the receiver's CPU (user + system) per message over ``--seconds``.
 
-Rows alternate between the two handlers, ``--rounds`` times.
+Rows alternate between the handlers, ``--rounds`` times; ``cpu`` also for a ``RingChannel(1)``
+(what a standby's tracks subscriber is: nothing runs per message).
 
     .venv/bin/python scripts/zenoh_handler_cost.py --subscribers 40 --rounds 3
 """
@@ -38,6 +39,8 @@ RATE_HZ = 10.0
 
 
 def handler(kind: str, fn: Callable[[Any], None]) -> Any:
+    if kind == "ring":  # the newest sample kept in Zenoh, read when wanted: no Python
+        return zenoh.handlers.RingChannel(1)
     return fn if kind == "plain" else zenoh.handlers.Callback(fn, indirect=False)
 
 
@@ -89,7 +92,8 @@ def cpu_row(kind: str, n: int, endpoint: str, seconds: float) -> str:
     r1, h1 = resource.getrusage(resource.RUSAGE_SELF), heard[0]
     child.wait()
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    msgs = max(1, h1 - h0)
+    # A ring calls nothing: count the messages sent in the window instead.
+    msgs = round(n * RATE_HZ * seconds) if kind == "ring" else max(1, h1 - h0)
     del subs
     session.close()
     return (
@@ -124,7 +128,7 @@ def main() -> None:
             check=True,
         )
     for _ in range(a.rounds):
-        for kind in ("plain", "direct"):
+        for kind in ("plain", "direct", "ring"):
             print(cpu_row(kind, a.subscribers, a.endpoint, a.seconds), flush=True)
 
 

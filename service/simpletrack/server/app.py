@@ -269,6 +269,7 @@ class Service:
                 ),
                 idle_s=s.sensor_idle_s,
             )
+            shared.drain = self._owned.drain_tracks
             self._owned.start()
             self._owned.settle(timeout=5.0)  # this member's share subscribed before its token
         else:
@@ -490,8 +491,12 @@ class Service:
         once): one this member owns or stands by for and does not hold (its own tracks teach
         nothing; another member's with a higher epoch fence it)."""
         names = self.keys.sensor_of(str(sample.key_expr))
-        if names is None or self._shared is None or len(self.membership.members) <= 1:
-            return None  # alone, the only tracks are this member's own
+        if names is None or self._shared is None:
+            return None
+        if self._owned is None and len(self.membership.members) <= 1:
+            return None  # wide and alone: the only tracks are this member's own
+        # (Per-stream subscribers hear other sessions only, and a standby's ring is read
+        # at its takeover, when the member that published them may have gone.)
         stream = f"{names[0]}/{names[1]}"
         if self.membership.role(stream) is Role.NONE:
             return None
