@@ -32,7 +32,7 @@ from simpletrack.server.announcer import Announcer
 from simpletrack.server.custody import Shared
 from simpletrack.server.custody_machine import Heard
 from simpletrack.server.gil import Trackers
-from simpletrack.server.group import Membership, Role, on_zenoh, undeclare
+from simpletrack.server.group import Membership, Role, undeclare
 from simpletrack.server.intake import (
     BurstBudget,
     Inbound,
@@ -162,12 +162,12 @@ class Service:
             # ("owned": per stream, with the detections, server/subscriptions.py.)
             if s.subscribe is Subscribe.WIDE:
                 self._declared.append(
-                    session.declare_subscriber(self.keys.all_tracks, on_zenoh(self._on_tracks))
+                    session.declare_subscriber(self.keys.all_tracks, self._on_tracks)
                 )
                 if self.fusion is not None:
                     self._declared.append(
                         session.declare_subscriber(
-                            self.keys.all_vehicle_tracks, on_zenoh(self._on_vehicle_tracks)
+                            self.keys.all_vehicle_tracks, self._on_vehicle_tracks
                         )
                     )
             self.stop_requested.wait(SETTLE_S)
@@ -269,7 +269,6 @@ class Service:
                 ),
                 idle_s=s.sensor_idle_s,
             )
-            shared.drain = self._owned.drain_tracks
             self._owned.start()
             self._owned.settle(timeout=5.0)  # this member's share subscribed before its token
         else:
@@ -284,10 +283,7 @@ class Service:
                 history=ext.HistoryConfig(max_samples=s.history_frames),
                 recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
             )
-            self._subscriber = (
-                subscriber.sample_miss_listener(on_zenoh(misses.on_miss)),
-                subscriber,
-            )
+            self._subscriber = (subscriber.sample_miss_listener(misses.on_miss), subscriber)
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )
@@ -491,12 +487,8 @@ class Service:
         once): one this member owns or stands by for and does not hold (its own tracks teach
         nothing; another member's with a higher epoch fence it)."""
         names = self.keys.sensor_of(str(sample.key_expr))
-        if names is None or self._shared is None:
-            return None
-        if self._owned is None and len(self.membership.members) <= 1:
-            return None  # wide and alone: the only tracks are this member's own
-        # (Per-stream subscribers hear other sessions only, and a standby's ring is read
-        # at its takeover, when the member that published them may have gone.)
+        if names is None or self._shared is None or len(self.membership.members) <= 1:
+            return None  # alone, the only tracks are this member's own
         stream = f"{names[0]}/{names[1]}"
         if self.membership.role(stream) is Role.NONE:
             return None

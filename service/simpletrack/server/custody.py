@@ -62,9 +62,6 @@ class Shared:
     # vehicle/sensor -> the last tracks frame heard on its key (any member's)
     published: dict[str, Heard] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
-    # Reads a stream's tracks waiting in its ring into ``published`` (server/subscriptions.py:
-    # a standby's tracks are read when needed, not as they come).
-    drain: Callable[[str], None] = lambda stream: None
     counts: dict[str, int] = field(  # for the status reply; the metrics count the same
         default_factory=lambda: {"handoffs_in": 0, "handoffs_out": 0, "failovers": 0}
     )
@@ -119,7 +116,6 @@ class Custody:
         return View(m.me, m.members, Role.OWNER, m.me)
 
     def heard(self, stream: str) -> Heard | None:
-        self.shared.drain(stream)
         with self.shared.lock:
             return self.shared.published.get(stream)
 
@@ -389,8 +385,3 @@ class Custody:
 
     def housekeeping(self) -> None:
         self.machine.housekeeping(time.monotonic(), self.shared.membership.role)
-        # Held here, stood by for now (its release on the way): another member's tracks on
-        # its key wait in a ring; a higher epoch among them fences it (server/app.py).
-        role = self.shared.membership.role
-        for key in [k for k in self.registry.sensors if role(k) is Role.STANDBY]:
-            self.shared.drain(key)

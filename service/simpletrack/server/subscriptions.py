@@ -10,13 +10,9 @@ publisher without that token (a plain ``put``) is found by the group's scout
 such a sensor gets a plain subscriber whose first frames wait until the scout's copies of the
 frames sent before it (the first, at least) are fetched and put ahead of them.
 
-The tracks of the same streams are heard per stream too, from other sessions only (a
-member's own tracks teach it nothing). An owner hears them at once, on Zenoh's thread: another
-member publishing its stream took it over (a fence). A standby needs them only at a takeover
-(how far planners have the stream, the ids they hold): its subscriber is a ring of the last
-``TRACKS_RING`` messages, no Python per message (parsing each cost a standby ~0.14 ms a
-frame, half its cost), read by ``drain_tracks`` when the custody asks and before the ring
-goes.
+The tracks of the same streams are heard per stream too (a standby learns how far planners
+have them; an owner hears whether another member took its stream over), from other sessions
+only: a member's own tracks teach it nothing.
 
 Declarations happen on this module's own thread, never in a Zenoh callback.
 """
@@ -33,7 +29,7 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
-from simpletrack.server.group import Membership, Role, on_zenoh, undeclare
+from simpletrack.server.group import Membership, Role, undeclare
 from simpletrack.server.intake import Intake
 from simpletrack.server.logs import get_logger
 from simpletrack.server.scout import GATHER_S, Scout, fetch_plain
@@ -49,10 +45,6 @@ GRACE_S = 30.0
 # A plain sensor's gate opens once the scout's copies meet the frames heard here (no frame
 # between them), or after QUIET_S without a frame here; at the latest after VERIFY_S.
 QUIET_S, VERIFY_S, RETRY_S = 0.05, 2.0, 0.01
-# The newest tracks messages a standby's ring keeps: one publisher's last says how far
-# planners have the stream; two publishing at once (each side of a healed partition) leave
-# both among the last few.
-TRACKS_RING = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,9 +195,7 @@ class Subscriptions:
         self._plain_lost: dict[str, float] = {}  # sensor -> when its scouts' last token went
         self._subs: dict[str, tuple[Any, ...]] = {}  # vehicle/sensor -> its entities
         self._plain_subs: set[str] = set()  # the sensors of _subs subscribed as plain
-        self._track_subs: dict[str, Any] = {}  # stream -> its tracks subscriber (owned)
-        self._track_rings: dict[str, Any] = {}  # stream -> its tracks ring (stood by for)
-        self._rings_lock = threading.Lock()  # a ring is read by a worker, replaced here
+        self._track_subs: dict[str, Any] = {}  # stream -> its tracks subscriber
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -405,7 +395,7 @@ class Subscriptions:
             ),
             recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
         )
-        return (sub.sample_miss_listener(on_zenoh(self._on_miss)), sub)
+        return (sub.sample_miss_listener(self._on_miss), sub)
 
     def _plain_subscriber(self, sensor: str) -> tuple[Any, _Held]:
         """Its frames wait (``release``) until the scouts' copies of earlier ones are in."""
@@ -451,56 +441,20 @@ class Subscriptions:
             vehicle, name = sensor.split("/")
             log.info("plain_sensor_subscribed", vehicle=vehicle, sensor=name, from_scout=extra)
 
-    def _tracks_of(self, stream: str) -> tuple[str, Callable[[zenoh.Sample], None]]:
-        assert self._tracks is not None
-        vehicle, name = stream.split("/")
-        if name == VEHICLE_STREAM:
-            return self.keys.vehicle_tracks(vehicle), self._tracks.vehicle
-        return self.keys.tracks(vehicle, name), self._tracks.sensor
-
     def _reconcile_tracks(self, streams: set[str]) -> None:
-        """Owned streams' tracks on a callback, stood-by-for streams' in a ring. A stream
-        changing sides gets its new subscriber before the old one goes (a ring read first)."""
         if self._tracks is None:
             return
-        owned = {s for s in streams if self.membership.role(s) is Role.OWNER}
-        rings = streams - owned
-        for stream in sorted(owned - set(self._track_subs)):
-            key, handler = self._tracks_of(stream)
-            self._track_subs[stream] = self.session.declare_subscriber(
-                key, on_zenoh(handler), allowed_origin=zenoh.Locality.REMOTE
-            )
-        for stream in sorted(rings - set(self._track_rings)):
-            ring = self.session.declare_subscriber(
-                self._tracks_of(stream)[0],
-                zenoh.handlers.RingChannel(TRACKS_RING),
-                allowed_origin=zenoh.Locality.REMOTE,
-            )
-            with self._rings_lock:
-                self._track_rings[stream] = ring
-        for stream in [s for s in self._track_subs if s not in owned]:
+        for stream in [s for s in self._track_subs if s not in streams]:
             undeclare(self._track_subs.pop(stream))
-        for stream in [s for s in self._track_rings if s not in rings]:
-            self.drain_tracks(stream)
-            with self._rings_lock:
-                undeclare(self._track_rings.pop(stream))
-
-    def drain_tracks(self, stream: str) -> None:
-        """Hand the tracks messages waiting in ``stream``'s ring to its handler (the
-        custody, before it reads how far planners have the stream). Any thread."""
-        with self._rings_lock:
-            ring = self._track_rings.get(stream)
-            if ring is None or self._tracks is None:
-                return
-            handler = self._tracks_of(stream)[1]
-            for _ in range(TRACKS_RING):
-                try:
-                    sample = ring.try_recv()
-                except zenoh.ZError:
-                    return  # the session is closing
-                if sample is None:
-                    return
-                handler(sample)
+        for stream in sorted(streams - set(self._track_subs)):
+            vehicle, name = stream.split("/")
+            if name == VEHICLE_STREAM:
+                key, handler = self.keys.vehicle_tracks(vehicle), self._tracks.vehicle
+            else:
+                key, handler = self.keys.tracks(vehicle, name), self._tracks.sensor
+            self._track_subs[stream] = self.session.declare_subscriber(
+                key, handler, allowed_origin=zenoh.Locality.REMOTE
+            )
 
     def close(self) -> None:
         """Stop and undeclare everything (first thing at shutdown: no new frames)."""
@@ -519,9 +473,6 @@ class Subscriptions:
         self._subs.clear()
         undeclare(*self._track_subs.values())
         self._track_subs.clear()
-        with self._rings_lock:
-            undeclare(*self._track_rings.values())
-            self._track_rings.clear()
 
 
 __all__ = ["Subscriptions", "TracksHandlers"]
