@@ -14,7 +14,6 @@ synthetic frames (``--boxes`` boxes) at 10 Hz; each member's CPU (user + system,
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import subprocess
 import sys
@@ -23,6 +22,7 @@ import time
 import zenoh
 
 from simpletrack.bench.loadgen import synthetic_box_arrays
+from simpletrack.bench.service import cpu_seconds
 from simpletrack.client.publisher import DetectionPublisher
 from simpletrack.server.group import ranking
 from simpletrack.session import ZenohOptions
@@ -38,12 +38,6 @@ def serve(instance: str, peers: list[str]) -> subprocess.Popen[bytes]:
     for p in peers:
         cmd += ["--connect", ENDPOINTS[p]]
     return subprocess.Popen(cmd)
-
-
-def cpu_s(proc: subprocess.Popen[bytes]) -> float:
-    with open(f"/proc/{proc.pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def owned_by_a(n: int) -> list[str]:
@@ -73,7 +67,11 @@ def run(pair: bool, sensors: int, boxes: int, seconds: float) -> str:
         while True:
             elapsed = time.perf_counter() - start
             if elapsed > WARMUP_S and not marks:
-                marks, k0, t0 = {n: cpu_s(p) for n, p in members.items()}, k, time.perf_counter()
+                marks, k0, t0 = (
+                    {n: cpu_seconds(p.pid) for n, p in members.items()},
+                    k,
+                    time.perf_counter(),
+                )
             if elapsed > WARMUP_S + seconds:
                 break
             wait = start + k / RATE_HZ - time.perf_counter()
@@ -83,7 +81,7 @@ def run(pair: bool, sensors: int, boxes: int, seconds: float) -> str:
                 p.publish_arrays(frames[k % len(frames)])
             k += 1
         n_frames, span = (k - k0) * sensors, time.perf_counter() - t0
-        used = {n: cpu_s(p) - marks[n] for n, p in members.items()}
+        used = {n: cpu_seconds(p.pid) - marks[n] for n, p in members.items()}
         for p in pubs:
             p.close()
         heard.undeclare()

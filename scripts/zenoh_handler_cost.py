@@ -8,10 +8,12 @@ holds a tracks subscriber and a miss listener per stream, so this is per stream 
   many plain subscribers, in a fresh process; its threads and resident memory before and
   after.
 - ``cpu``: ``--subscribers`` plain subscribers hearing 10 KB messages at 10 Hz each from a
-  child process (``zenoh_heartbeat_cost.py``'s fleet, without heartbeats); the receiver's CPU (user + system) per message over ``--seconds``.
+  child process (``zenoh_heartbeat_cost.py``'s fleet, without heartbeats); the receiver's
+  CPU (user + system) per message over ``--seconds``.
 
 Rows alternate between the handlers, ``--rounds`` times; ``cpu`` also for a ``RingChannel(1)``
-(what a standby's tracks subscriber is: nothing runs per message).
+(nothing runs per message; a standby's tracks subscriber as one was tried and taken back,
+docs/BENCHMARKS.md).
 
     .venv/bin/python scripts/zenoh_handler_cost.py --subscribers 40 --rounds 3
 """

@@ -34,6 +34,7 @@ from tests.scale.fleet import (
 from tests.service_helpers import metric, wait_for
 
 SENSORS = 30
+MEMBERS = ("m-a", "m-b", "m-c")  # m-b is killed
 FRAMES = 150  # 15 s
 
 
@@ -49,7 +50,7 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
         group.env["SIMPLETRACK_SUBSCRIBE"] = "wide"
     fleet = None
     try:
-        for name in ("m-a", "m-b", "m-c"):
+        for name in MEMBERS:
             group.add(name)
         with planner_session(group) as session:
             planner = Planner()
@@ -96,7 +97,7 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             assert not unequal, unequal[:20]
             # The killed member's last frame of each sensor it owned, at most (a standby that
             # did not learn how far planners have a stream would publish its whole replay).
-            owned = sum(ranking(["m-a", "m-b", "m-c"], s)[0] == "m-b" for s in frames)
+            owned = sum(ranking(MEMBERS, s)[0] == "m-b" for s in frames)
             assert repeats <= owned, (repeats, owned)  # at most the killed member's last frames
             assert track_sub.duplicates == repeats
             not_once = [(k, c) for k, c in delivered.items() if c != 1]
