@@ -60,10 +60,34 @@ def test_fault_figures_time_the_victim_s_sensors_and_count_frames_around_the_fau
     # Frames put from 1 s before the fault on: seq 1 and 2 of each sensor.
     assert f["window_frames"] == 8
     assert f["zero_answers"] == 1  # sensor 2, seq 2
+    assert f["zero_answers_refused"] == 0
+    assert f["unanswered"] == [
+        {
+            "sensor": 2,
+            "seq": 2,
+            "put_after_fault_ms": 20.0,
+            "served_before": "m1",
+            "moved": True,
+            "next_answered": None,
+            "refused": None,
+        }
+    ]
     assert f["republished"] == 1  # sensor 3, seq 1
     assert f["multiple_answers"] == 1  # sensor 2, seq 1
     # Before the window: seq 0 of each sensor, answered 2, 1, 1 and 1 times.
     assert f["answers_per_frame_before"] == pytest.approx(5 / 4, abs=0.01)
+
+
+def test_an_unanswered_frame_refused_with_a_notice_is_told_apart() -> None:
+    sent = [[FAULT - 100 * MS, FAULT + 20 * MS, FAULT + 40 * MS]]
+    answers = [(0, 0, "m0", FAULT - 90 * MS)]
+    refusals = [(0, 1, "dropped_queue_full"), (0, 0, "dropped_queue_full")]
+    f = fault_figures(answers, sent, FAULT, "m1", refusals=refusals)
+    assert f["zero_answers"] == 2 and f["zero_answers_refused"] == 1
+    assert [(u["seq"], u["refused"], u["moved"]) for u in f["unanswered"]] == [
+        (1, "dropped_queue_full", False),
+        (2, None, False),
+    ]
 
 
 def test_the_survivors_own_sensors_are_timed_before_and_after_the_fault() -> None:

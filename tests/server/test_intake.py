@@ -17,6 +17,7 @@ from simpletrack.server.intake import (
     Dropped,
     Inbound,
     Intake,
+    Kind,
     WorkQueue,
 )
 from simpletrack.server.settings import Backpressure
@@ -127,6 +128,49 @@ def test_a_blocked_producer_resumes_when_the_worker_takes_a_frame() -> None:
     assert isinstance(q.get(timeout=1.0), Inbound)
     assert done.wait(2.0)
     t.join()
+
+
+# --- checkpoints: a standby's burst of states never sheds a frame -------------------------
+
+
+def checkpoint(sensor: int, version: int) -> Inbound:
+    key = f"bench/@simpletrack/checkpoint/v0/s{sensor}"
+    return Inbound(key, pack({"v": version}), time.time_ns(), time.perf_counter(), Kind.CHECKPOINT)
+
+
+@pytest.mark.parametrize("policy", ["drop_oldest", "block"])
+def test_an_owner_s_burst_of_checkpoints_sheds_no_frame_and_waits_for_no_room(
+    policy: str,
+) -> None:
+    # An owner sends every changed sensor's state at once: 300 into a queue of 8 holding
+    # this member's own frames. Before: the burst evicted the frames (and checkpoints).
+    q = WorkQueue(maxsize=8)
+    put = q.put_blocking if policy == "block" else (lambda i: q.put_drop_oldest(i)[0])
+    for k in range(8):
+        assert put(frame("own", k))
+    for sensor in range(300):
+        assert put(checkpoint(sensor, 1))  # a full queue: block mode would wait here
+    items = drain(q)
+    assert not [i for i in items if isinstance(i, Dropped)]
+    assert frames_of(items, "own") == list(range(8))
+    assert len([i for i in items if isinstance(i, Inbound) and i.kind is Kind.CHECKPOINT]) == 300
+    assert len(q) == 0
+
+
+def test_a_newer_checkpoint_replaces_the_waiting_one_so_one_per_sensor_waits() -> None:
+    q = WorkQueue(maxsize=4)
+    for version in range(5):
+        for sensor in range(3):
+            q.put_drop_oldest(checkpoint(sensor, version))
+    assert len(q) == 3
+    q.put_drop_oldest(frame("own", 0))
+    items = drain(q)
+    states = [i.payload for i in items if isinstance(i, Inbound) and i.kind is Kind.CHECKPOINT]
+    assert states == [pack({"v": 4})] * 3
+    assert frames_of(items, "own") == [0]
+    q.close()
+    assert q.put_drop_oldest(checkpoint(0, 5)) == (False, None)
+    assert not q.put_blocking(checkpoint(0, 5))
 
 
 # --- catch-up frames: recovered or replayed bursts are kept beyond maxsize, never shed ------

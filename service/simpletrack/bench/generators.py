@@ -193,7 +193,13 @@ SUMMED = (
     "received_during_window",
     "loadgen_cpu_s",
 )
-POOLED = ("latency_s", "put_lateness_s", "answers", "sent_ns")  # joined in process order
+POOLED = (
+    "latency_s",
+    "put_lateness_s",
+    "answers",
+    "refusals",
+    "sent_ns",
+)  # joined in process order
 
 
 def merge_results(results: Sequence[dict[str, Any]]) -> dict[str, Any]:

@@ -281,6 +281,8 @@ class Receiver:
         self.in_window = 0  # track frames received since window_start
         # With spec.record_answers: (the whole load's row, seq, instance, receipt ns).
         self.answers: list[tuple[int, int, str, int]] = []
+        # And each refusal naming a frame: (the whole load's row, seq, reason).
+        self.refusals: list[tuple[int, int, str]] = []
         # The threads the callbacks run in (one per subscriber): with the publishing thread,
         # the ones that share this process's interpreter lock.
         self.threads: set[int] = set()
@@ -338,6 +340,8 @@ class Receiver:
             self.reasons[reason] += 1
             if at is not None:
                 self.refused[at] = True
+                if self.spec.record_answers:
+                    self.refusals.append((self.first + at[0], at[1], reason))
 
     def answered(self) -> int:
         """Frames answered by tracks or a refusal naming them. Not tracks plus errors: a
@@ -524,7 +528,11 @@ def _result(spec: LoadSpec, sched: Schedule, recv: Receiver) -> dict[str, Any]:
             "window_s": sched.window_s,
             "generator": generator_figures(spec, sched, recv),
             **(
-                {"answers": list(recv.answers), "sent_ns": sent_ns.tolist()}
+                {
+                    "answers": list(recv.answers),
+                    "refusals": list(recv.refusals),
+                    "sent_ns": sent_ns.tolist(),
+                }
                 if spec.record_answers
                 else {}
             ),

@@ -57,6 +57,7 @@ FAULT_DRAIN_S = 3.0
 # The survivors' own sensors are timed over frames put this long after the fault (when the
 # moved sensors' subscriptions, cache fetches and restores land on them) and as long before.
 STALL_S = 3.0
+MAX_LISTED = 20  # unanswered frames named in a fault run's report
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,10 +111,13 @@ def fault_figures(
     fault_ns: int,
     victim: str,
     warm_ticks: int = 0,
+    refusals: Sequence[Sequence[Any]] = (),
 ) -> dict[str, Any]:
     """What a fault of member ``victim`` at ``fault_ns`` cost, from every track frame received
     (``(sensor, seq, instance, receipt ns)``) and every put's time (``sent_ns[sensor][seq]``,
-    0: not sent), all on one monotonic clock."""
+    0: not sent), all on one monotonic clock; ``refusals``: each refusal naming a frame
+    (``(sensor, seq, reason)``), told with the unanswered frames it names."""
+    refused = {(int(sensor), int(seq)): str(reason) for sensor, seq, reason in refusals}
     by_sensor: dict[int, list[tuple[int, str]]] = {}
     per_frame: Counter[tuple[int, int]] = Counter()
     by_frame: dict[tuple[int, int], list[tuple[int, str]]] = {}
@@ -185,11 +189,52 @@ def fault_figures(
         else {**slowest, "answered_after_put_ms": round(slowest["answered_after_put_ms"], 1)},
         "window_frames": len(window),
         "zero_answers": sum(1 for f in window if per_frame[f] == 0),
+        # Of them, refused with a notice (a shed frame): announced, not lost silently.
+        "zero_answers_refused": sum(1 for f in window if per_frame[f] == 0 and f in refused),
+        # Each frame with no answer, to look up in the members' logs: which member served its
+        # sensor before the fault and which answered the sensor's next frame.
+        "unanswered": [
+            {
+                **_unanswered(f, sent_ns, fault_ns, by_sensor, by_frame, victim),
+                "refused": refused.get(f),
+            }
+            for f in window
+            if per_frame[f] == 0
+        ][:MAX_LISTED],
         "republished": sum(1 for f in window if _republished(by_frame.get(f, []), victim)),
         "multiple_answers": sum(
             1 for f in window if per_frame[f] > 1 and not _republished(by_frame[f], victim)
         ),
         "answers_per_frame_before": round(sum(earlier) / len(earlier), 2) if earlier else None,
+    }
+
+
+def _unanswered(
+    frame: tuple[int, int],
+    sent_ns: Sequence[Sequence[int]],
+    fault_ns: int,
+    by_sensor: dict[int, list[tuple[int, str]]],
+    by_frame: dict[tuple[int, int], list[tuple[int, str]]],
+    victim: str,
+) -> dict[str, Any]:
+    sensor, seq = frame
+    put = sent_ns[sensor][seq]
+    before = [inst for t, inst in sorted(by_sensor.get(sensor, [])) if t < fault_ns]
+    later = next(
+        (
+            (k, min(by_frame[sensor, k])[1])
+            for k in range(seq + 1, len(sent_ns[sensor]))
+            if (sensor, k) in by_frame
+        ),
+        None,
+    )
+    return {
+        "sensor": sensor,
+        "seq": seq,
+        "put_after_fault_ms": round((put - fault_ns) / 1e6, 1),
+        "served_before": before[-1] if before else None,
+        "moved": bool(before) and before[-1] == victim,
+        "next_answered": None if later is None else {"seq": later[0], "by": later[1]},
     }
 
 
@@ -267,8 +312,14 @@ def fault_run(
         "members": members,
         "sensors": opts.fault_sensors,
         **fault_figures(
-            result["answers"], result["sent_ns"], fault_ns, victim.instance, spec.warm_ticks
+            result["answers"],
+            result["sent_ns"],
+            fault_ns,
+            victim.instance,
+            spec.warm_ticks,
+            result.get("refusals", ()),
         ),
+        "refused_by_reason": result["refused_by_reason"],
         # Resident memory of each member just before the fault, and of the survivors (which
         # now hold the victim's sensors too) at the end of the window.
         "rss_mb_before": rss_before,
@@ -288,7 +339,8 @@ def fault_line(f: dict[str, Any]) -> str:
         f"(their first frame after it answered {f.get('first_after_max_ms')} ms after its put "
         f"at most, median {f.get('first_after_median_ms')} ms), "
         f"{f['not_recovered']} never; of {f['window_frames']} frames around the fault "
-        f"{f['zero_answers']} unanswered, {f.get('republished', 0)} of the victim's last "
+        f"{f['zero_answers']} unanswered ({f.get('zero_answers_refused', 0)} of them refused "
+        f"with a notice), {f.get('republished', 0)} of the victim's last "
         f"published again, {f['multiple_answers']} otherwise answered more than once; "
         f"the other {f['bystander_sensors']} sensors' p99 {f['bystander_p99_ms_before']} ms "
         f"before, {f['bystander_p99_ms_after']} ms after (max {f['bystander_max_ms_after']}, "
