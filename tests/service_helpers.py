@@ -89,6 +89,10 @@ class ServiceProcess:
     log_path: Path
     instance: str
 
+    def threads(self) -> int:
+        """The process's threads now (Linux)."""
+        return len(os.listdir(f"/proc/{self.proc.pid}/task"))
+
     def logs(self) -> list[dict[str, Any]]:
         out = []
         for line in self.log_path.read_text().splitlines():

@@ -53,6 +53,8 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
         for name in MEMBERS:
             group.add(name)
         with planner_session(group) as session:
+            wait_for(lambda: all(len(m.metrics()) > 0 for m in group.members.values()), 10)
+            idle_threads = {n: m.threads() for n, m in group.members.items()}  # no sensor yet
             planner = Planner()
             sub = session.declare_subscriber("fleet/*/*/tracks", planner.on_tracks)
             delivered: Counter[tuple[str, int]] = Counter()
@@ -72,6 +74,10 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
             # a start (1.3-1.4 s here beside the busy members) and its takeovers on a
             # slower machine.
             wait_for(lambda: fleet.k >= 25, 20, "2.5 s of frames")
+            # Each member holds ~20 streams (owner or standby) now: their subscribers and miss
+            # listeners run on Zenoh's threads, not one Python thread each (two per stream).
+            grown = {n: m.threads() - idle_threads[n] for n, m in group.members.items()}
+            assert all(g < SENSORS // 3 for g in grown.values()), grown
             killed = group.remove("m-b")
             killed.stop(signal.SIGKILL)
             wait_for(lambda: fleet.k >= 45, 20, "2 s after the kill")

@@ -32,7 +32,7 @@ from simpletrack.server.announcer import Announcer
 from simpletrack.server.custody import Shared
 from simpletrack.server.custody_machine import Heard
 from simpletrack.server.gil import Trackers
-from simpletrack.server.group import Membership, Role, undeclare
+from simpletrack.server.group import Membership, Role, on_zenoh, undeclare
 from simpletrack.server.intake import (
     BurstBudget,
     Inbound,
@@ -162,12 +162,12 @@ class Service:
             # ("owned": per stream, with the detections, server/subscriptions.py.)
             if s.subscribe is Subscribe.WIDE:
                 self._declared.append(
-                    session.declare_subscriber(self.keys.all_tracks, self._on_tracks)
+                    session.declare_subscriber(self.keys.all_tracks, on_zenoh(self._on_tracks))
                 )
                 if self.fusion is not None:
                     self._declared.append(
                         session.declare_subscriber(
-                            self.keys.all_vehicle_tracks, self._on_vehicle_tracks
+                            self.keys.all_vehicle_tracks, on_zenoh(self._on_vehicle_tracks)
                         )
                     )
             self.stop_requested.wait(SETTLE_S)
@@ -283,7 +283,10 @@ class Service:
                 history=ext.HistoryConfig(max_samples=s.history_frames),
                 recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
             )
-            self._subscriber = (subscriber.sample_miss_listener(misses.on_miss), subscriber)
+            self._subscriber = (
+                subscriber.sample_miss_listener(on_zenoh(misses.on_miss)),
+                subscriber,
+            )
         self._declared.append(
             session.declare_queryable(self.keys.status(s.instance), self._on_status_query)
         )

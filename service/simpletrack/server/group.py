@@ -20,7 +20,7 @@ import hashlib
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
@@ -29,6 +29,7 @@ from simpletrack.server.logs import get_logger
 from simpletrack.wire.keys import SERVICE_CHUNK, Keys
 
 log = get_logger("group")
+T = TypeVar("T")
 ROUTER_SETTLE_S = 2.0
 TICK_S = 0.1
 
@@ -236,6 +237,13 @@ class Membership:
         self._sub = self._cap_sub = None
 
 
+def on_zenoh(fn: Callable[[T], None]) -> zenoh.handlers.Callback[T]:
+    """A handler that runs ``fn`` on Zenoh's own thread, for callbacks that never block. A
+    plain callable gets a Python thread of its own per subscriber or miss listener: with one
+    of each per stream held, two threads per stream, and a thread switch per message."""
+    return zenoh.handlers.Callback(fn, indirect=False)
+
+
 def undeclare(*entities: Any) -> None:
     """Undeclare Zenoh entities in order, logging (never raising) what fails: the session
     may be closing, or a receiver still borrowing one."""
@@ -246,4 +254,4 @@ def undeclare(*entities: Any) -> None:
             log.warning("undeclare_failed", error=str(e))
 
 
-__all__ = ["Membership", "Role", "ranking", "undeclare", "weight"]
+__all__ = ["Membership", "Role", "on_zenoh", "ranking", "undeclare", "weight"]

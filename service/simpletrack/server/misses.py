@@ -89,7 +89,7 @@ class MissCounter:
             self._instance,
         )
         try:
-            # DROP: this runs on Zenoh's miss-listener thread, which must never block.
+            # DROP: a miss listener runs on Zenoh's own thread (group.on_zenoh): never block.
             put(
                 self._session,
                 self._keys.errors(vehicle, name),

@@ -29,7 +29,7 @@ from typing import Any
 import zenoh
 from zenoh import ext
 
-from simpletrack.server.group import Membership, Role, undeclare
+from simpletrack.server.group import Membership, Role, on_zenoh, undeclare
 from simpletrack.server.intake import Intake
 from simpletrack.server.logs import get_logger
 from simpletrack.server.scout import GATHER_S, Scout, fetch_plain
@@ -395,7 +395,7 @@ class Subscriptions:
             ),
             recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
         )
-        return (sub.sample_miss_listener(self._on_miss), sub)
+        return (sub.sample_miss_listener(on_zenoh(self._on_miss)), sub)
 
     def _plain_subscriber(self, sensor: str) -> tuple[Any, _Held]:
         """Its frames wait (``release``) until the scouts' copies of earlier ones are in."""
@@ -453,7 +453,9 @@ class Subscriptions:
             else:
                 key, handler = self.keys.tracks(vehicle, name), self._tracks.sensor
             self._track_subs[stream] = self.session.declare_subscriber(
-                key, handler, allowed_origin=zenoh.Locality.REMOTE
+                key,
+                on_zenoh(handler),
+                allowed_origin=zenoh.Locality.REMOTE,
             )
 
     def close(self) -> None:
