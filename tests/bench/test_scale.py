@@ -129,9 +129,11 @@ def test_a_tiny_scale_run_reports_capacity_and_both_faults(
         ]
     )
     assert rc == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert "| members | capacity | ratio to 1 |" in out
     assert "failover (SIGKILL)" in out and "handoff (SIGTERM)" in out
+    assert captured.err.count("refused over the whole run: ") == 2  # the progress lines
     doc = json.loads((tmp_path / "scale.json").read_text())
     rows = {r["members"]: r for r in doc["members"]}
     assert set(rows) == {1, 2}
@@ -147,6 +149,10 @@ def test_a_tiny_scale_run_reports_capacity_and_both_faults(
         # 2 s at 10 Hz, the fault at 1 s: the window holds every frame put in the last ~2 s.
         assert 3 * 10 <= f["window_frames"] <= 3 * 25
         assert 0 <= f["zero_answers"] + f["multiple_answers"] <= f["window_frames"]
+        # Every unanswered frame named (with the refusal that answered it, if any).
+        assert len(f["unanswered"]) == min(f["zero_answers"], 20)
+        assert 0 <= f["zero_answers_refused"] <= f["zero_answers"]
+        assert isinstance(f["refused_by_reason"], dict)
         served = f["sensors_served_by_victim"]
         assert 0 <= served <= 3
         timed = served - f["not_recovered"]

@@ -346,8 +346,13 @@ def fault_line(f: dict[str, Any]) -> str:
         f"before, {f['bystander_p99_ms_after']} ms after (max {f['bystander_max_ms_after']}, "
         f"{f['bystander_unanswered_after']} unanswered); members' memory "
         f"{_mb(f['rss_mb_before'])} MB before, survivors {_mb(f['rss_mb_after'])} MB after; "
-        f"the load generator's longest put lag {f['generator']['lag_max_ms']} ms"
+        f"the load generator's longest put lag {f['generator']['lag_max_ms']} ms; "
+        f"refused over the whole run: {_reasons(f.get('refused_by_reason') or {})}"
     )
+
+
+def _reasons(counts: dict[str, int]) -> str:
+    return ", ".join(f"{n} {reason}" for reason, n in sorted(counts.items())) or "none"
 
 
 def _mb(values: Sequence[float | None]) -> str:

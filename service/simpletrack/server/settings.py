@@ -304,7 +304,9 @@ class ServiceSettings(BaseSettings):
         default=2, description="tracker threads; each sensor is pinned to one"
     )
     queue_size: Annotated[int, Field(ge=1, le=100_000)] = Field(
-        default=64, description="frames waiting per worker before backpressure applies"
+        default=64,
+        description="frames waiting per worker before backpressure applies (other members' "
+        "checkpoints wait apart, the newest of each sensor)",
     )
     backpressure: Backpressure = Field(
         default=Backpressure.DROP_OLDEST, description="what a full queue does: drop_oldest or block"
