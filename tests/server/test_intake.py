@@ -154,7 +154,7 @@ def test_an_owner_s_burst_of_checkpoints_sheds_no_frame_and_waits_for_no_room(
     assert not [i for i in items if isinstance(i, Dropped)]
     assert frames_of(items, "own") == list(range(8))
     assert len([i for i in items if isinstance(i, Inbound) and i.kind is Kind.CHECKPOINT]) == 300
-    assert len(q) == 0
+    assert len(q) == 0 and q.checkpoints == 0
 
 
 def test_a_newer_checkpoint_replaces_the_waiting_one_so_one_per_sensor_waits() -> None:
@@ -162,7 +162,7 @@ def test_a_newer_checkpoint_replaces_the_waiting_one_so_one_per_sensor_waits() -
     for version in range(5):
         for sensor in range(3):
             q.put_drop_oldest(checkpoint(sensor, version))
-    assert len(q) == 3
+    assert q.checkpoints == 3 and len(q) == 0  # frames only
     q.put_drop_oldest(frame("own", 0))
     items = drain(q)
     states = [i.payload for i in items if isinstance(i, Inbound) and i.kind is Kind.CHECKPOINT]

@@ -205,7 +205,12 @@ class WorkQueue:
         self._closed = False
 
     def __len__(self) -> int:
-        return self._frames + self._checkpoints
+        return self._frames
+
+    @property
+    def checkpoints(self) -> int:
+        """Checkpoints waiting (one per key at most), apart from the frames."""
+        return self._checkpoints
 
     @property
     def kept(self) -> int:
