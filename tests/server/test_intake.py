@@ -173,6 +173,19 @@ def test_a_newer_checkpoint_replaces_the_waiting_one_so_one_per_sensor_waits() -
     assert not q.put_blocking(checkpoint(0, 5))
 
 
+def test_checkpoints_of_more_sensors_than_the_bound_are_refused_and_counted() -> None:
+    q = WorkQueue(maxsize=4, max_checkpoints=2)
+    dropped: list[tuple[str, ErrorReason]] = []
+    intake = Intake(
+        [q], Backpressure.DROP_OLDEST, lambda key: None, lambda i, r: dropped.append((i.key, r))
+    )
+    for sensor in (0, 1, 2, 0):
+        intake._enqueue("v0/s", checkpoint(sensor, 1))
+    assert q.checkpoints == 2  # sensor 0's newer one replaced its own; sensor 2's refused
+    assert dropped == [(checkpoint(2, 1).key, ErrorReason.DROPPED_QUEUE_FULL)]
+    assert q.put_drop_oldest(frame("own", 0)) == (True, None)  # frames are not bounded by it
+
+
 # --- catch-up frames: recovered or replayed bursts are kept beyond maxsize, never shed ------
 
 S = 1_000_000_000  # ns

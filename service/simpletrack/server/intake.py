@@ -18,7 +18,8 @@ and announced as ``missed``.
 
 Checkpoints (another member's state of a sensor this one stands by for) never count against
 ``queue_size`` and are never shed: a newer one of a key replaces the one waiting (each is a
-sensor's whole state, the older worthless), so at most one per sensor stood by for waits. An
+sensor's whole state, the older worthless), so at most one per sensor stood by for waits
+(``MAX_CHECKPOINTS`` sensors a worker; a new one past it is refused and counted). An
 owner sends its changed sensors' states all at once every ``checkpoint_interval_s``; counted
 as frames, that burst shed this member's own frames once it stood by for a few hundred
 sensors (a queue of 64 held 58 checkpoints).
@@ -44,6 +45,9 @@ from simpletrack.wire.reasons import ErrorReason
 
 # Snapshot queries waiting per worker; more are refused at once (the querier gets an error).
 MAX_QUERIES = 16
+# Sensors with a checkpoint waiting per worker (one each): far above the hundreds a member
+# stands by for, a bound on what another member's bug or a stranger's keys can hold here.
+MAX_CHECKPOINTS = 4096
 _CONTROL = ""  # the queries' place in the rotation: no Zenoh key is empty
 
 # What a kept frame costs the burst budget beyond its payload: the Inbound, its key and its
@@ -183,12 +187,14 @@ class WorkQueue:
         maxsize: int,
         max_control: int = MAX_QUERIES,
         *,
+        max_checkpoints: int = MAX_CHECKPOINTS,
         budget: BurstBudget | None = None,
         catchup_after_s: float = CATCHUP_AFTER_S,
     ) -> None:
         if catchup_after_s <= 0:
             raise ValueError(f"catchup_after_s must be positive: {catchup_after_s}")
         self.maxsize, self.max_control = maxsize, max_control
+        self.max_checkpoints = max_checkpoints
         self.budget = budget
         self._catchup_ns = round(catchup_after_s * 1e9)
         self._lanes: dict[str, _Lane] = {}  # keys with frames or notices waiting
@@ -334,7 +340,7 @@ class WorkQueue:
         ``(False, item)``: a catch-up frame refused, the budget being spent (its ``missed``
         notice is queued)."""
         if item.kind is Kind.CHECKPOINT:
-            return self._put_checkpoint(item), None
+            return self.put_checkpoint(item), None
         header = self._header(item)
         with self._cond:
             if self._closed:
@@ -377,7 +383,7 @@ class WorkQueue:
         A catch-up frame is kept on the budget without waiting; one the budget has no room
         for waits like a fresh frame: block mode never loses one. A checkpoint never waits."""
         if item.kind is Kind.CHECKPOINT:
-            return self._put_checkpoint(item)
+            return self.put_checkpoint(item)
         header = self._header(item)
         with self._cond:
             if self._closed:
@@ -391,15 +397,18 @@ class WorkQueue:
             self._cond.notify_all()
             return True
 
-    def _put_checkpoint(self, item: Inbound) -> bool:
-        """Queue a checkpoint in place of its key's waiting one, if any. False if closed."""
+    def put_checkpoint(self, item: Inbound) -> bool:
+        """Queue a checkpoint in place of its key's waiting one, if any. False if closed, or
+        (refused) when ``max_checkpoints`` keys have one waiting already."""
         with self._cond:
             if self._closed:
                 return False
-            lane = self._lane(item.key)
-            if lane.checkpoint is None:
+            lane = self._lanes.get(item.key)
+            if lane is None or lane.checkpoint is None:
+                if self._checkpoints >= self.max_checkpoints:
+                    return False
                 self._checkpoints += 1
-            lane.checkpoint = self._entry(item, None)
+            self._lane(item.key).checkpoint = self._entry(item, None)
             self._cond.notify()
             return True
 
@@ -524,6 +533,10 @@ class Intake:
 
     def _enqueue(self, route: str, item: Inbound) -> None:
         q = self._queues[worker_index(route, len(self._queues))]
+        if item.kind is Kind.CHECKPOINT:
+            if not q.put_checkpoint(item) and not q.closed:
+                self._on_dropped(item, ErrorReason.DROPPED_QUEUE_FULL)  # counted, not announced
+            return
         if self._block:
             accepted, evicted = q.put_blocking(item), None
         else:
@@ -545,6 +558,7 @@ def depth(queues: list[WorkQueue]) -> int:
 __all__ = [
     "CATCHUP_AFTER_S",
     "FRAME_OVERHEAD",
+    "MAX_CHECKPOINTS",
     "MAX_QUERIES",
     "BurstBudget",
     "Dropped",
