@@ -173,6 +173,18 @@ def test_a_newer_checkpoint_replaces_the_waiting_one_so_one_per_sensor_waits() -
     assert not q.put_blocking(checkpoint(0, 5))
 
 
+def test_of_two_states_of_a_sensor_the_one_written_later_waits_whatever_their_order() -> None:
+    q = WorkQueue(maxsize=4)
+
+    def state(written_ns: int) -> Inbound:
+        return Inbound("cp/v0/s0", pack({"written_ns": written_ns}), 0, 0.0, Kind.CHECKPOINT)
+
+    for written_ns in (20, 10, 30, 25):  # 10 and 25 overtaken on the way (or a stale member's)
+        assert q.put_drop_oldest(state(written_ns)) == (True, None)
+    [only] = drain(q)
+    assert isinstance(only, Inbound) and only.payload == pack({"written_ns": 30})
+
+
 def test_checkpoints_of_more_sensors_than_the_bound_are_refused_and_counted() -> None:
     q = WorkQueue(maxsize=4, max_checkpoints=2)
     dropped: list[tuple[str, ErrorReason]] = []

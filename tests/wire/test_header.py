@@ -142,3 +142,18 @@ def test_peek_heard_refuses_an_id_column_that_does_not_match_its_count() -> None
     obj["tracks"]["count"] = 0
     obj["tracks"]["id"] = b""
     assert peek_heard(msgpack.packb(obj))[1] == 0  # type: ignore[index]
+
+
+def test_peek_written_reads_a_checkpoint_s_written_ns_and_nothing_from_garbage() -> None:
+    from simpletrack.wire.codec import encode
+    from simpletrack.wire.header import peek_written
+    from simpletrack.wire.models import SensorSnapshot
+
+    snap = SensorSnapshot(
+        schema_version=1, vehicle="v", sensor="s", config_digest="d", written_ns=1234,
+        last_seq=3, last_stamp_ns=300, id_base=0, id_next=5, frames=0, tracker=b"t",
+    )  # fmt: skip
+    assert peek_written(encode(snap)) == 1234
+    assert peek_written(b"\xc1 garbage") is None
+    assert peek_written(msgpack.packb({"written_ns": -1})) is None
+    assert peek_written(msgpack.packb([1234])) is None

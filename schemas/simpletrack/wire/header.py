@@ -55,6 +55,18 @@ def peek_custody(payload: bytes) -> tuple[str | None, int | None]:
     return (instance if isinstance(instance, str) else None), _int64(obj, "epoch")
 
 
+def peek_written(payload: bytes) -> int | None:
+    """``written_ns`` of a SensorSnapshot (a checkpoint) without validating it: which of two
+    states of one sensor is the newer. None when it cannot be read."""
+    if len(payload) > MAX_BYTES:
+        return None
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception:
+        return None
+    return _int64(obj, "written_ns") if isinstance(obj, dict) else None
+
+
 def peek_heard(payload: bytes) -> tuple[int, int, int | None] | None:
     """(stamp_ns, next id: the highest track id + 1, 0 for none; epoch) of a TrackFrame,
     for a standby that only needs how far planners have it: one msgpack parse and the id

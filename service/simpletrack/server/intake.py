@@ -18,9 +18,9 @@ and announced as ``missed``.
 
 Checkpoints (another member's state of a sensor this one stands by for) never count against
 ``queue_size`` and are never shed: a newer one of a key replaces the one waiting (each is a
-sensor's whole state, the older worthless), so at most one per sensor stood by for waits
-(``MAX_CHECKPOINTS`` sensors a worker; a new one past it is refused and counted). An
-owner sends its changed sensors' states all at once every ``checkpoint_interval_s``; counted
+sensor's whole state, the older worthless; of two, the one written later stays), so at most
+one per sensor stood by for waits (``MAX_CHECKPOINTS`` sensors a worker; a new one past it is
+refused and counted). An owner sends its changed sensors' states all at once every ``checkpoint_interval_s``; counted
 as frames, that burst shed this member's own frames once it stood by for a few hundred
 sensors (a queue of 64 held 58 checkpoints).
 """
@@ -39,7 +39,7 @@ import zenoh
 
 from simpletrack.server.gil import Trackers
 from simpletrack.server.settings import Backpressure
-from simpletrack.wire.header import peek_header
+from simpletrack.wire.header import peek_header, peek_written
 from simpletrack.wire.messages import MAX_NOTICE_SEQS
 from simpletrack.wire.reasons import ErrorReason
 
@@ -404,10 +404,13 @@ class WorkQueue:
             if self._closed:
                 return False
             lane = self._lanes.get(item.key)
-            if lane is None or lane.checkpoint is None:
+            waiting = None if lane is None else lane.checkpoint
+            if waiting is None:
                 if self._checkpoints >= self.max_checkpoints:
                     return False
                 self._checkpoints += 1
+            elif _overtaken(item, waiting.item):
+                return True  # as the custody machine would: the newer state stays
             self._lane(item.key).checkpoint = self._entry(item, None)
             self._cond.notify()
             return True
@@ -461,6 +464,13 @@ class WorkQueue:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+
+
+def _overtaken(arriving: Inbound, waiting: Inbound) -> bool:
+    """The arriving state is older than the one waiting (two members sent one each, e.g.
+    after a partition; or one overtook the other on the way). Read only then: rare."""
+    new, old = peek_written(arriving.payload), peek_written(waiting.payload)
+    return new is not None and old is not None and new < old
 
 
 def _depth(lane: _Lane) -> int:
