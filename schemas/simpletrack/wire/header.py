@@ -25,17 +25,22 @@ def _int64(obj: dict[Any, Any], key: str) -> int | None:
     return v if type(v) is int and 0 <= v < _INT64_END else None
 
 
-def peek_header(payload: bytes) -> tuple[int | None, int | None]:
-    """(seq, stamp_ns) of a payload, each None when it cannot be read. Never raises."""
+def _map(payload: bytes) -> dict[Any, Any] | None:
+    """The payload's msgpack map, parsed whole; None for garbage of any kind, anything but a
+    map, or a payload over the decoder's byte cap. Never raises."""
     if len(payload) > MAX_BYTES:
-        return None, None
+        return None
     try:
         obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception:  # garbage of any kind: nothing to report
-        return None, None
-    if not isinstance(obj, dict):
-        return None, None
-    return _int64(obj, "seq"), _int64(obj, "stamp_ns")
+        return None
+    return obj if isinstance(obj, dict) else None
+
+
+def peek_header(payload: bytes) -> tuple[int | None, int | None]:
+    """(seq, stamp_ns) of a payload, each None when it cannot be read. Never raises."""
+    obj = _map(payload)
+    return (None, None) if obj is None else (_int64(obj, "seq"), _int64(obj, "stamp_ns"))
 
 
 def peek_custody(payload: bytes) -> tuple[str | None, int | None]:
@@ -43,13 +48,8 @@ def peek_custody(payload: bytes) -> tuple[str | None, int | None]:
     validating it: who published it, in which custody epoch (None: not there or unreadable).
     A member reads it from the tracks of the streams it holds, published by another one:
     a higher epoch there means its own state is stale (docs/SCALE.md, "Fencing")."""
-    if len(payload) > MAX_BYTES:
-        return None, None
-    try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
-    except Exception:
-        return None, None
-    if not isinstance(obj, dict):
+    obj = _map(payload)
+    if obj is None:
         return None, None
     instance = obj.get("instance")
     return (instance if isinstance(instance, str) else None), _int64(obj, "epoch")
@@ -58,13 +58,8 @@ def peek_custody(payload: bytes) -> tuple[str | None, int | None]:
 def peek_written(payload: bytes) -> int | None:
     """``written_ns`` of a SensorSnapshot (a checkpoint) without validating it: which of two
     states of one sensor is the newer. None when it cannot be read."""
-    if len(payload) > MAX_BYTES:
-        return None
-    try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
-    except Exception:
-        return None
-    return _int64(obj, "written_ns") if isinstance(obj, dict) else None
+    obj = _map(payload)
+    return None if obj is None else _int64(obj, "written_ns")
 
 
 def peek_heard(payload: bytes) -> tuple[int, int, int | None] | None:
@@ -72,13 +67,8 @@ def peek_heard(payload: bytes) -> tuple[int, int, int | None] | None:
     for a standby that only needs how far planners have it: one msgpack parse and the id
     column, no validation of the other columns (the full decoder costs ~10x this on every
     frame the owner publishes). None when those two cannot be read."""
-    if len(payload) > MAX_BYTES:
-        return None
-    try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True)
-    except Exception:
-        return None
-    if not isinstance(obj, dict):
+    obj = _map(payload)
+    if obj is None:
         return None
     stamp, tracks = _int64(obj, "stamp_ns"), obj.get("tracks")
     if stamp is None or not isinstance(tracks, dict):
