@@ -193,13 +193,8 @@ SUMMED = (
     "received_during_window",
     "loadgen_cpu_s",
 )
-POOLED = (
-    "latency_s",
-    "put_lateness_s",
-    "answers",
-    "refusals",
-    "sent_ns",
-)  # joined in process order
+# Joined in process order.
+POOLED = ("latency_s", "put_lateness_s", "answers", "refusals", "sent_ns")
 
 
 def merge_results(results: Sequence[dict[str, Any]]) -> dict[str, Any]:

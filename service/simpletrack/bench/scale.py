@@ -198,9 +198,8 @@ def fault_figures(
                 **_unanswered(f, sent_ns, fault_ns, by_sensor, by_frame, victim),
                 "refused": refused.get(f),
             }
-            for f in window
-            if per_frame[f] == 0
-        ][:MAX_LISTED],
+            for f in [f for f in window if per_frame[f] == 0][:MAX_LISTED]
+        ],
         "republished": sum(1 for f in window if _republished(by_frame.get(f, []), victim)),
         "multiple_answers": sum(
             1 for f in window if per_frame[f] > 1 and not _republished(by_frame[f], victim)
