@@ -131,11 +131,13 @@ def fault_figures(
     first_ms: list[float] = []  # each moved sensor's first frame put after the fault
     slowest: dict[str, Any] | None = None  # the latest of them, to look it up in the logs
     bystanders: set[int] = set()  # last served by a survivor before the fault
+    last_server: dict[int, str] = {}  # who answered each sensor last before the fault
     for sensor, events in by_sensor.items():
         events.sort()
         before = [inst for t, inst in events if t < fault_ns]
         if not before:
             continue
+        last_server[sensor] = before[-1]
         if before[-1] != victim:
             bystanders.add(sensor)
             continue
@@ -166,6 +168,7 @@ def fault_figures(
         for k, t in enumerate(row)
         if k >= warm_ticks and t > 0 and t >= start
     ]
+    silent = [f for f in window if per_frame[f] == 0]
     earlier = [
         per_frame[i, k]
         for i, row in enumerate(sent_ns)
@@ -188,17 +191,17 @@ def fault_figures(
         if slowest is None
         else {**slowest, "answered_after_put_ms": round(slowest["answered_after_put_ms"], 1)},
         "window_frames": len(window),
-        "zero_answers": sum(1 for f in window if per_frame[f] == 0),
+        "zero_answers": len(silent),
         # Of them, refused with a notice (a shed frame): announced, not lost silently.
-        "zero_answers_refused": sum(1 for f in window if per_frame[f] == 0 and f in refused),
+        "zero_answers_refused": sum(1 for f in silent if f in refused),
         # Each frame with no answer, to look up in the members' logs: which member served its
         # sensor before the fault and which answered the sensor's next frame.
         "unanswered": [
             {
-                **_unanswered(f, sent_ns, fault_ns, by_sensor, by_frame, victim),
+                **_unanswered(f, sent_ns, fault_ns, last_server.get(f[0]), by_frame, victim),
                 "refused": refused.get(f),
             }
-            for f in [f for f in window if per_frame[f] == 0][:MAX_LISTED]
+            for f in silent[:MAX_LISTED]
         ],
         "republished": sum(1 for f in window if _republished(by_frame.get(f, []), victim)),
         "multiple_answers": sum(
@@ -212,13 +215,12 @@ def _unanswered(
     frame: tuple[int, int],
     sent_ns: Sequence[Sequence[int]],
     fault_ns: int,
-    by_sensor: dict[int, list[tuple[int, str]]],
+    served_before: str | None,
     by_frame: dict[tuple[int, int], list[tuple[int, str]]],
     victim: str,
 ) -> dict[str, Any]:
     sensor, seq = frame
     put = sent_ns[sensor][seq]
-    before = [inst for t, inst in sorted(by_sensor.get(sensor, [])) if t < fault_ns]
     later = next(
         (
             (k, min(by_frame[sensor, k])[1])
@@ -231,8 +233,8 @@ def _unanswered(
         "sensor": sensor,
         "seq": seq,
         "put_after_fault_ms": round((put - fault_ns) / 1e6, 1),
-        "served_before": before[-1] if before else None,
-        "moved": bool(before) and before[-1] == victim,
+        "served_before": served_before,
+        "moved": served_before == victim,
         "next_answered": None if later is None else {"seq": later[0], "by": later[1]},
     }
 
