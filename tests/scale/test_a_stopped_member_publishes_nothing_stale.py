@@ -82,10 +82,12 @@ def test_a_member_stopped_past_the_lease_publishes_nothing_stale(tmp_path: Path)
             }
         stale, unanswered, unequal, repeats = [], [], [], Counter[str]()
         in_flight: list[str] = []
+        repeated: list[str] = []  # who published each repeated answer, when (vs the stop)
         for name, payloads in frames.items():
             expected = expected_tracks(name, payloads)
             top = -1
             by_seq: dict[int, list[TrackArrays]] = {}
+            who: dict[int, list[str]] = {}
             for f, t in got.get(name, []):  # arrival order
                 assert f.epoch is not None, "every message carries its epoch"
                 if f.epoch < top:
@@ -96,11 +98,16 @@ def test_a_member_stopped_past_the_lease_publishes_nothing_stale(tmp_path: Path)
                     (in_flight if f.seq <= stopped_k + 1 else stale).append(late)
                 top = max(top, f.epoch)
                 by_seq.setdefault(f.seq, []).append(t)
+                who.setdefault(f.seq, []).append(
+                    f"{f.instance} e{f.epoch} +{(f.published_ns - stopped_ns) / 1e6:.0f}ms"
+                )
             for seq in range(FRAMES):
                 answers = by_seq.get(seq, [])
                 if not answers:
                     unanswered.append(f"{name} seq {seq}")
                 repeats[name] += max(0, len(answers) - 1)
+                if len(answers) > 1:
+                    repeated.append(f"{name} seq {seq}: {who[seq]}")
                 unequal += [
                     f"{name} seq {seq}" for a in answers if not same_tracks(a, expected[seq])
                 ]
@@ -108,7 +115,7 @@ def test_a_member_stopped_past_the_lease_publishes_nothing_stale(tmp_path: Path)
         assert len(in_flight) <= len({x.split()[0] for x in in_flight}), in_flight  # 1 a sensor
         assert not unanswered, (len(unanswered), unanswered[:10])
         assert not unequal, (len(unequal), unequal[:10])
-        assert max(repeats.values()) <= 1, repeats.most_common(5)
+        assert max(repeats.values()) <= 1, (repeats.most_common(5), repeated[:10])
         # The group took the stopped member's sensors over, and it took them back.
         theirs = {n for n, v in got.items() if any(f.instance == busiest for f, _ in v)}
         moved = {
