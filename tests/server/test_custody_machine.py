@@ -13,8 +13,8 @@ Guarantees, one table test (or a group) each:
      tracked without publishing, except after a failover the last one heard (at least
      once: the dead member may have been killed halfway through that put).
  G5  kept, cached and waiting frames overlap: each frame is tracked once, in stamp order.
- G6  a gap after the state is asked of the vehicle's cache (restore, failover, hand-off);
-     filled: ids exactly as an uninterrupted run (no floor raised); not filled: the hole is
+ G6  a gap after the state is asked of the vehicle's cache (restore, failover, hand-off):
+     its newest frames back to the state (all it keeps when that was not enough); filled: ids exactly as an uninterrupted run (no floor raised); not filled: the hole is
      announced as missed and new ids start above every id heard and reserved.
  G7  a lone instance restarted from its snapshot replays the gap since it first (the
      crash costs planners nothing when the vehicle's cache covers it).
@@ -30,7 +30,10 @@ Guarantees, one table test (or a group) each:
      only when nobody holds the stream (and its last message is sent again: the stop may
      have cut it off). A higher epoch heard on a held stream fences it the same way. Alone,
      nothing is fenced. Epochs grow by one takeover each, ordered by instance on a tie.
- G11 a fused vehicle's stream replays through its reorder buffer (marked replayed).
+ G11 a fused vehicle's stream replays through its reorder buffer (marked replayed); taken up
+     when its group starts to fuse, the frames a sensor's own key was answered for by a
+     member of before fusion are skipped, whether kept as its standby or waiting (the
+     vehicle's cache hands a new subscription its last frames).
  G12 an evicted stream asks again at its next frame; a cache answer after the takeover
      finished is ignored.
  G13 the group changed: a stream stood by for and owned now, whose kept frames the old
@@ -44,6 +47,7 @@ from __future__ import annotations
 import pytest
 
 from simpletrack.server.custody_machine import (
+    FETCH_SLACK,
     RELEASE_GUARD_S,
     AnnounceMissed,
     Ask,
@@ -61,6 +65,7 @@ from simpletrack.server.custody_machine import (
     Resolve,
     Role,
     SensorCoverage,
+    Skip,
     Source,
     Stash,
     Takeover,
@@ -261,8 +266,9 @@ def test_g5_overlapping_kept_cached_and_waiting_frames_tracked_once_in_order() -
     m.checkpoint(S, snap(3, written_ns=5))
     m.frame(S, f(9), view(), 0.0)
     m.frame(S, f(8), view(), 0.0)  # also waiting
-    assert take(m, [], snap(3)) == [FetchCache(S)]  # 4, 5 missing
-    acts = m.cached(S, [f(q) for q in range(2, 10)])
+    # 4, 5 missing: the cache's newest frames back to the state's 3, and 10 sent since
+    assert take(m, [], snap(3)) == [FetchCache(S, 9 - 3 + FETCH_SLACK)]
+    acts = m.cached(S, [f(q) for q in range(2, 10)], 16)
     assert tracked(acts) == [(q, True) for q in range(4, 10)]
 
 
@@ -271,7 +277,7 @@ def test_g6_g7_restart_replays_the_gap_from_the_cache_with_exact_ids() -> None:
     m = machine()
     m.restart([snap(10)])
     assert m.frame(S, f(20), view(members=(ME,)), 0.0) == [Resolve(S)]
-    assert take(m, [], snap(10)) == [FetchCache(S)]
+    assert take(m, [], snap(10)) == [FetchCache(S, 20)]
     acts = m.cached(S, [f(q) for q in range(1, 21)])  # the cache's last 20 frames
     assert tracked(acts) == [(q, True) for q in range(11, 21)]
     assert not any(isinstance(a, (AnnounceMissed, RaiseIds)) for a in acts)
@@ -281,12 +287,25 @@ def test_g6_a_hole_nobody_kept_is_announced_and_raises_the_ids() -> None:
     m = machine()
     m.restart([snap(10)])
     m.frame(S, f(20), view(members=(ME,)), 0.0)
-    assert take(m, [], snap(10), heard(9, next_id=77)) == [FetchCache(S)]
-    acts = m.cached(S, [f(q) for q in range(15, 20)])  # 11..14 gone from the cache
+    assert take(m, [], snap(10), heard(9, next_id=77)) == [FetchCache(S, 20)]
+    acts = m.cached(S, [f(q) for q in range(15, 20)], 20)  # 11..14 gone from the cache
     assert AnnounceMissed(S, 4) in acts and RaiseIds(S, 77) in acts
     assert tracked(acts) == [(q, True) for q in range(15, 21)]
     # the floor is raised before any frame after the hole is tracked
     assert acts.index(RaiseIds(S, 77)) < next(i for i, a in enumerate(acts) if isinstance(a, Track))
+
+
+def test_g6_a_cache_that_answers_all_asked_with_holes_left_is_asked_for_all() -> None:
+    # Asked for its newest 20, the cache had 20 frames newer than expected (a burst since):
+    # the gap's frames are older, asked for once more, all of them.
+    m = machine()
+    m.restart([snap(10)])
+    m.frame(S, f(20), view(members=(ME,)), 0.0)
+    assert take(m, [], snap(10)) == [FetchCache(S, 20)]
+    assert m.cached(S, [f(q) for q in range(21, 41)], 20) == [FetchCache(S)]
+    acts = m.cached(S, [f(q) for q in range(1, 41)], None)
+    assert tracked(acts)[:10] == [(q, True) for q in range(11, 21)]
+    assert not any(isinstance(a, (AnnounceMissed, RaiseIds)) for a in acts)
 
 
 def test_g6_a_restarted_publisher_is_not_exact() -> None:
@@ -443,6 +462,60 @@ def test_g11_a_fused_vehicle_replays_through_its_buffer() -> None:
     assert t.source is Source.NEW
     assert [(type(a), a.replayed) for a in acts if isinstance(a, Track)] == [(Track, True)]
     assert [a.replayed for a in m.frame(v, f(2), view(), 0.0) if isinstance(a, Track)] == [False]
+
+
+@pytest.mark.parametrize("kept", [False, True])
+def test_g11_fusion_starts_past_what_each_sensors_own_key_was_answered_for(kept: bool) -> None:
+    m = machine()
+    m.fused_sensors = ("lidar", "cam")
+    v, lidar, cam = "car/@vehicle", "fleet/car/lidar/detections", "fleet/car/cam/detections"
+    frames = [f(3, lidar), f(3, cam), f(4, lidar), f(4, cam), f(5, lidar)]
+    if kept:  # the old member owned the sensors' own streams; this one stood by for them
+        for fr in frames:
+            sensor = f"car/{fr[0].split('/')[2]}"
+            assert isinstance(m.frame(sensor, fr, view(Role.STANDBY), 0.0)[0], Keep)
+        assert m.frame(v, f(6, lidar), view(), 1.0) == [Ask(v)]
+    else:  # not stood by for: the new subscription's history and live frames wait
+        assert m.frame(v, frames[0], view(), 1.0) == [Ask(v)]
+        for fr in [*frames[1:], f(6, lidar)]:
+            assert m.frame(v, fr, view(), 1.0) == []
+    on_own_key = {"car/lidar": Heard(400, 9), "car/cam": Heard(300, 9)}
+    t = m.answered(v, [], on_own_key.get)
+    acts = m.adopted(v, None)
+    assert t.source is Source.NEW
+    done = [(a.frame[0].split("/")[2], a.frame[1]) for a in acts if isinstance(a, Track)]
+    assert done == [("cam", 4), ("lidar", 5), ("lidar", 6)]
+    if not kept:
+        skipped = [(a.frame[0].split("/")[2], a.frame[1]) for a in acts if isinstance(a, Skip)]
+        assert skipped == [("lidar", 3), ("cam", 3), ("lidar", 4)]
+
+
+class UpTo:
+    """A fused vehicle's state holding every frame stamped up to ``stamp``."""
+
+    def __init__(self, stamp: int) -> None:
+        self.stamp = stamp
+
+    def covers(self, frame: Frame) -> bool:
+        return frame[2] <= self.stamp
+
+    def holes(self, frames: object) -> int:
+        return 0
+
+
+def test_g11_a_vehicle_taken_over_skips_the_frames_its_state_holds() -> None:
+    # A new owner's subscription hands it the vehicle's last frames: those the checkpoint
+    # holds would meet the sensors' order rules, refused and announced, if tracked again.
+    m = machine()
+    v, lidar, cam = "car/@vehicle", "fleet/car/lidar/detections", "fleet/car/cam/detections"
+    assert m.frame(v, f(2, lidar), view(), 0.0) == [Ask(v)]
+    for fr in (f(2, cam), f(3, lidar), f(4, cam)):
+        assert m.frame(v, fr, view(), 0.0) == []
+    m.answered(v, [snap(3, stream=v)], nobody)
+    acts = m.adopted(v, UpTo(300))
+    assert [(type(a).__name__, a.frame[1]) for a in acts if isinstance(a, Track | Skip)] == [
+        ("Skip", 2), ("Skip", 2), ("Skip", 3), ("Track", 4),
+    ]  # fmt: skip
 
 
 # ---------------------------------------------------------------------- G12

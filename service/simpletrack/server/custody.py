@@ -176,8 +176,8 @@ class Custody:
         self._taking[stream] = t
         return self._done(stream, self.machine.adopted(stream, coverage))
 
-    def cached(self, stream: str, frames: Sequence[Inbound]) -> Actions:
-        return self._done(stream, self.machine.cached(stream, frames))
+    def cached(self, stream: str, frames: Sequence[Inbound], asked: int | None = None) -> Actions:
+        return self._done(stream, self.machine.cached(stream, frames, asked))
 
     def _done(self, stream: str, acts: Actions) -> Actions:
         """A takeover complete (no cache to wait for): accounted and logged."""
@@ -222,11 +222,16 @@ class Custody:
         held.tracker.next_id = max(held.tracker.next_id + ID_BLOCK, lowest)
 
     def fetch_cache(
-        self, vehicle: str, sensor: str, on_done: Callable[[list[Inbound]], None]
+        self,
+        vehicle: str,
+        sensor: str,
+        on_done: Callable[[list[Inbound]], None],
+        newest: int | None = None,
     ) -> None:
         """The frames the vehicle's advanced publisher still caches (its last
-        ``cache_frames``), from its cache queryable under ``<detections key>/@adv``.
-        ``on_done`` runs on a Zenoh thread."""
+        ``cache_frames``; ``newest``: its newest that many, the cache's ``_max``), from its
+        cache queryable under ``<detections key>/@adv``. ``on_done`` runs on a Zenoh
+        thread."""
         sh = self.shared
         got: list[Inbound] = []
 
@@ -246,7 +251,7 @@ class Custody:
         key = sh.keys.detections(vehicle, "*" if sensor == VEHICLE_STREAM else sensor)
         try:
             sh.session.get(
-                f"{key}/@adv/**",
+                f"{key}/@adv/**" + ("" if newest is None else f"?_max={newest}"),
                 zenoh.handlers.Callback(on_reply, lambda: on_done(got)),
                 target=zenoh.QueryTarget.ALL,
                 consolidation=zenoh.ConsolidationMode.NONE,

@@ -34,6 +34,10 @@ RELEASE_GUARD_S = 2.0
 RELEASED_KEPT_S = 60.0
 MAX_STANDBY_STREAMS = 100_000
 _RESTARTED_PUBLISHER = 100_000  # a seq jump this large is a new numbering, not a gap
+# Frames a sensor may publish between the newest one a takeover has and the cache's answer
+# (they come live as well); a cache that answers as many frames as asked, holes still left,
+# is asked for all it keeps.
+FETCH_SLACK = 10
 EPOCH_TAG_BITS = 16
 
 
@@ -124,7 +128,11 @@ class Resolve:
 
 @dataclass(frozen=True, slots=True)
 class FetchCache:
-    stream: str  # ask the vehicle's cache for the gap (``cached`` follows)
+    """Ask the vehicle's cache for the gap (``cached`` follows): its ``newest`` frames (a cache
+    answers the newest n, or all it keeps: None)."""
+
+    stream: str
+    newest: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,6 +255,9 @@ class Takeover(Generic[F]):
     from_cache: int = 0
     exact_ids: bool = True  # the replay covers every seq since the state
     resend: bytes | None = None  # its own stash's last message, sent again first
+    # A fused vehicle's sensors: the stamp each was answered up to on its own key (by a
+    # member of before fusion); their frames up to it are skipped, wherever they come from.
+    answered_upto: dict[str, int] = field(default_factory=dict)
 
     @property
     def covered_stamp_ns(self) -> int | None:
@@ -446,13 +457,17 @@ class CustodyMachine(Generic[F]):
         self.released.pop(stream, None)
         checkpoint, kept = self._take_standby(stream)
         vehicle, name = stream.split("/")
+        answered_upto: dict[str, int] = {}
         if name == VEHICLE_STREAM:
             # Kept as the sensors' own streams before fusion was on in the group (a rolling
             # upgrade's last old member just left): those no member answered on the
-            # sensor's own key are the vehicle's now.
+            # sensor's own key are the vehicle's now. So for the frames that waited (the
+            # vehicles' caches hand a new subscription their last ones).
             for sensor in self.fused_sensors:
                 answered = heard(f"{vehicle}/{sensor}")
                 upto = None if answered is None else answered.stamp_ns
+                if upto is not None:
+                    answered_upto[sensor] = upto
                 kept += [
                     f for f in self._take_standby(f"{vehicle}/{sensor}")[1] if self._after(f, upto)
                 ]
@@ -472,7 +487,7 @@ class CustodyMachine(Generic[F]):
             # died before its first checkpoint, or with its standby): tracks start afresh,
             # their ids above every one heard.
             source = Source.LOST
-        t = Takeover(stream, source, snap, last, kept)
+        t = Takeover(stream, source, snap, last, kept, answered_upto=answered_upto)
         if source is Source.RESTORE and resend is not None and snap is not None:
             # Its own stash taken back: sent again unless another member published the
             # stream with a higher epoch meanwhile (readers drop the old message then; that
@@ -498,11 +513,12 @@ class CustodyMachine(Generic[F]):
         t.missed = coverage.holes([*t.replay, *s.waiting])
         if t.missed:
             s.phase = Phase.FILLING
-            return [FetchCache(stream)]
+            return [FetchCache(stream, self._newest(coverage, [*t.replay, *s.waiting]))]
         return self._complete(stream, s, t)
 
-    def cached(self, stream: str, frames: Sequence[F]) -> list[Action[F]]:
-        """The vehicle's cache answered (the frames it still keeps, any order)."""
+    def cached(self, stream: str, frames: Sequence[F], asked: int | None = None) -> list[Action[F]]:
+        """The vehicle's cache answered (the frames it still keeps, any order; ``asked``: the
+        ``newest`` of the question)."""
         s = self._streams.get(stream)
         if s is None or s.phase is not Phase.FILLING or s.takeover is None:
             return []  # finished already (at shutdown, without the cache)
@@ -512,11 +528,25 @@ class CustodyMachine(Generic[F]):
         extra = [
             f for f in frames if (cov is None or not cov.covers(f)) and self._id(f) not in have
         ]
-        t.from_cache = len(extra)
+        t.from_cache += len(extra)
         t.replay += extra
         if cov is not None:
             t.missed = cov.holes([*t.replay, *s.waiting])
+        if t.missed and asked is not None and len(frames) >= asked:
+            return [FetchCache(stream)]  # the cache may keep older ones: all of them
         return self._complete(stream, s, t)
+
+    def _newest(self, cov: Coverage[F], frames: Sequence[F]) -> int | None:
+        """How many of a cache's newest frames reach back to a sensor's state: from its last
+        seq to the newest frame here, and ``FETCH_SLACK`` published since. A fused vehicle's
+        sensors differ: all the cache keeps."""
+        if not isinstance(cov, SensorCoverage) or cov.last_seq is None:
+            return None
+        seqs = [q for q in (self.peek(f)[1] for f in frames) if q is not None]
+        top = max(seqs, default=cov.last_seq)
+        if top - cov.last_seq > _RESTARTED_PUBLISHER:
+            return None
+        return max(0, top - cov.last_seq) + FETCH_SLACK
 
     def settle(self) -> list[Action[F]]:
         """At the end: takeovers still waiting finish with what they have."""
@@ -715,9 +745,16 @@ class CustodyMachine(Generic[F]):
                 frames.append(f)
         s.phase = Phase.HELD
         if stream.endswith(f"/{VEHICLE_STREAM}"):
-            # A fused vehicle's frames go through its reorder buffer, which skips what the
-            # state holds and sends no message planners have (by its message seq).
-            acts += [Track(stream, f, replayed=True) for f in frames]
+            # A fused vehicle's frames go through its reorder buffer, which sends no message
+            # planners have (by its message seq). Those its state holds (a new owner's
+            # subscription hands it the vehicle's last frames) are skipped here, as a
+            # sensor's are: the sensor's order rules would refuse them, announced.
+            acts += [
+                Skip(stream, f)
+                if (cov is not None and cov.covers(f)) or self._answered(t, f)
+                else Track(stream, f, replayed=True)
+                for f in frames
+            ]
             return acts
         s.limits = (t.covered_stamp_ns, t.published_stamp_ns)
         s.phase = Phase.CATCHING_UP
@@ -779,6 +816,14 @@ class CustodyMachine(Generic[F]):
             return True
         stamp = self.peek(frame)[2]
         return stamp is None or stamp > stamp_ns
+
+    def _answered(self, t: Takeover[F], frame: F) -> bool:
+        """A fused sensor's frame its own key was answered for (``answered_upto``)."""
+        if not t.answered_upto:
+            return False
+        key, _, stamp = self.peek(frame)
+        upto = t.answered_upto.get(key.rsplit("/", 2)[-2] if key.count("/") >= 2 else "")
+        return upto is not None and stamp is not None and stamp <= upto
 
     def _stamp(self, frame: F) -> int | None:
         return self.peek(frame)[2]

@@ -342,7 +342,7 @@ class Worker(threading.Thread):
             elif isinstance(act, Resolve):
                 self._carry(self.custody.answered(act.stream, []))
             elif isinstance(act, FetchCache):
-                self._fetch_cache(act.stream)
+                self._fetch_cache(act.stream, act.newest)
             elif isinstance(act, Drop):
                 self._drop(act.frame, act.reason)
             elif isinstance(act, AnnounceMissed):
@@ -423,15 +423,15 @@ class Worker(threading.Thread):
 
         self.custody.ask(vehicle, holder, done)
 
-    def _fetch_cache(self, stream: str) -> None:
+    def _fetch_cache(self, stream: str, newest: int | None) -> None:
         vehicle, holder = stream.split("/")
 
         def done(cached: list[Inbound]) -> None:
             self.queue.put_control(
-                lambda: self._carry(self.custody.cached(stream, cached)), force=True
+                lambda: self._carry(self.custody.cached(stream, cached, newest)), force=True
             )
 
-        self.custody.fetch_cache(vehicle, holder, done)
+        self.custody.fetch_cache(vehicle, holder, done, newest)
 
     def _announce_missed(self, vehicle: str, sensor: str, n: int) -> None:
         state = self.sensors.get(f"{vehicle}/{sensor}")
