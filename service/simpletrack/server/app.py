@@ -48,7 +48,7 @@ from simpletrack.server.misses import MissCounter
 from simpletrack.server.outbox import MSGPACK, congestion_control, dropped, frame_error, put
 from simpletrack.server.plausibility import StartThresholds
 from simpletrack.server.sensors import SensorBudget
-from simpletrack.server.settings import ServiceSettings, Subscribe, config_digest
+from simpletrack.server.settings import ServiceSettings, StandbyCopy, Subscribe, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
 from simpletrack.server.streams import Streams
 from simpletrack.server.subscriptions import Subscriptions, TracksHandlers
@@ -268,6 +268,8 @@ class Service:
                     v, n, k, "of a plain publisher's first burst, past what the scout keeps"
                 ),
                 idle_s=s.sensor_idle_s,
+                standby_frames=s.standby is StandbyCopy.FRAMES,
+                fused=self.streams.configured,
             )
             self._owned.start()
             self._owned.settle(timeout=5.0)  # this member's share subscribed before its token

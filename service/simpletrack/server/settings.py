@@ -91,6 +91,11 @@ class Subscribe(StrEnum):
     OWNED = "owned"  # one per sensor owned or stood by for, from the vehicles' tokens
 
 
+class StandbyCopy(StrEnum):
+    CHECKPOINTS = "checkpoints"  # the owner's checkpoints and the tracks; frames from the cache
+    FRAMES = "frames"  # and every frame since the checkpoint, kept
+
+
 class LogFormat(StrEnum):
     JSON = "json"
     KV = "kv"
@@ -374,9 +379,13 @@ class ServiceSettings(BaseSettings):
         default=STATE_FORMAT,
         description="the byte form of the tracker states this member sends (checkpoints, hand-offs) and writes to state_dir: 2 leaves out what is zero in every track (a third of the bytes), 1 is the form of versions before it, which cannot read 2; set 1 while a rolling upgrade from such a version is under way",
     )
+    standby: StandbyCopy = Field(
+        default=StandbyCopy.CHECKPOINTS,
+        description="what a standby member hears of a sensor (subscribe = owned): checkpoints: the owner's checkpoints and the tracks, not the frames; a takeover replays the frames since the checkpoint from the vehicle's cache (a plain put's sensor, which has none, is still heard whole); frames: every frame too, kept since the checkpoint (standby_frames), the cache asked only past them",
+    )
     standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
         default=100,
-        description="frames per sensor a standby member keeps since the last checkpoint (replayed at a takeover)",
+        description="frames per sensor a standby member keeps since the last checkpoint (replayed at a takeover), and frames that wait per takeover",
     )
     fence_after_s: Seconds = Field(
         default=5.0,
