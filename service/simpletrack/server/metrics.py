@@ -210,7 +210,7 @@ class Metrics:
         )
         self.standby_sensors = Gauge(
             "simpletrack_standby_sensors",
-            "Sensors this instance stands by for (keeps their checkpoints and recent frames)",
+            "Sensors this instance stands by for (keeps their checkpoints, and recent frames where it hears them)",
             registry=r,
         )
         self.handoffs = Counter(
