@@ -518,6 +518,60 @@ def test_g11_a_vehicle_taken_over_skips_the_frames_its_state_holds() -> None:
     ]  # fmt: skip
 
 
+def test_g11_a_vehicles_frames_its_state_holds_are_skipped_until_each_sensor_is_past_it() -> None:
+    # A new owner's subscription hands it each sensor's last frame from the cache; one may
+    # come after the takeover finished, maybe a frame the cache's answer replayed already:
+    # skipped, not refused by the sensor's order rules. A sensor's first frame past both
+    # ends its catching up; once all are past, the order rules answer every frame.
+    m, v, lidar, cam = filling_vehicle(f(5, LIDAR))  # lidar 4 missing: the cache is asked
+    acts = m.cached(v, [f(4, lidar)])
+    assert [(type(a), a.frame[1]) for a in acts if isinstance(a, Track)] == [(Track, 4), (Track, 5)]
+    assert m.phase(v) is Phase.CATCHING_UP
+    assert m.frame(v, f(4, lidar), view(), 0.0) == [Skip(v, f(4, lidar))]  # replayed already
+    assert m.frame(v, f(5, lidar), view(), 0.0) == [Skip(v, f(5, lidar))]  # it waited: a copy
+    assert m.frame(v, f(3, cam), view(), 0.0) == [Skip(v, f(3, cam))]  # the state holds it
+    assert m.frame(v, f(6, lidar), view(), 0.0) == [Track(v, f(6, lidar))]  # lidar past both
+    assert m.phase(v) is Phase.CATCHING_UP  # cam is not yet
+    assert m.frame(v, f(5, cam), view(), 0.0) == [Track(v, f(5, cam))]
+    assert m.phase(v) is Phase.HELD
+    assert m.frame(v, f(3, cam), view(), 0.0) == [Track(v, f(3, cam))]
+
+
+def test_g11_a_vehicles_replay_orders_equal_stamps_as_its_reorder_buffer() -> None:
+    # Two sensors stamped alike, the camera's answer first: replayed in the buffer's order
+    # (its sensors', then seq), or the lidar's would come late into a state without history.
+    m, v, lidar, cam = filling_vehicle(f(6, LIDAR))
+    acts = m.cached(v, [f(4, cam), f(4, lidar), f(5, cam)])
+    done = [(a.frame[0].split("/")[2], a.frame[1]) for a in acts if isinstance(a, Track)]
+    assert done == [("lidar", 4), ("cam", 4), ("cam", 5), ("lidar", 6)]
+
+
+LIDAR, CAM = "fleet/car/lidar/detections", "fleet/car/cam/detections"
+
+
+def filling_vehicle(first: Frame) -> tuple[CustodyMachine[Frame], str, str, str]:
+    """A fused vehicle (lidar, cam) taken over from a state up to stamp 300 on ``first``,
+    lidar 4 missing: its cache asked."""
+    m = machine()
+    m.fused_sensors = ("lidar", "cam")
+    v = "car/@vehicle"
+    m.frame(v, first, view(), 0.0)
+    m.answered(v, [snap(3, stream=v)], nobody)
+    assert m.adopted(v, Holes(300, 1)) == [FetchCache(v)]
+    return m, v, LIDAR, CAM
+
+
+class Holes(UpTo):
+    """As ``UpTo``, with ``missing`` frames nobody kept."""
+
+    def __init__(self, stamp: int, missing: int) -> None:
+        super().__init__(stamp)
+        self.missing = missing
+
+    def holes(self, frames: object) -> int:
+        return self.missing if not any(f[1] == 4 for f in frames) else 0  # type: ignore[attr-defined]
+
+
 # ---------------------------------------------------------------------- G12
 def test_g12_evicted_asks_again_and_late_cache_ignored() -> None:
     m = machine()

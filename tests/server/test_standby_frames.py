@@ -16,22 +16,23 @@ OWN, STAND, NO = Role.OWNER, Role.STANDBY, Role.NONE
 
 
 @pytest.mark.parametrize(
-    ("role", "cached", "fused", "standby_frames", "hears"),
+    ("role", "cached", "fuses_later", "standby_frames", "hears"),
     [
         (OWN, True, False, False, True),  # the owner hears its sensors' frames
         (OWN, False, False, False, True),
         (STAND, True, False, False, False),  # the default standby: checkpoints, the cache later
         (STAND, False, False, False, True),  # a plain put keeps no cache: its standby's copy
-        (STAND, True, True, False, True),  # a fused vehicle's sensor: its reorder window's copies
+        (STAND, True, True, False, True),  # fused once the group can: the vehicle's first frames
         (STAND, True, False, True, True),  # standby = "frames"
         (NO, True, False, True, False),  # nobody else, whatever the setting
         (NO, False, True, True, False),
     ],
 )
 def test_who_hears_a_sensors_frames(
-    role: Role, cached: bool, fused: bool, standby_frames: bool, hears: bool
+    role: Role, cached: bool, fuses_later: bool, standby_frames: bool, hears: bool
 ) -> None:
-    assert hears_frames(role, cached=cached, fused=fused, standby_frames=standby_frames) is hears
+    got = hears_frames(role, cached=cached, fuses_later=fuses_later, standby_frames=standby_frames)
+    assert got is hears
 
 
 def test_the_default_standby_hears_checkpoints_only() -> None:

@@ -269,7 +269,9 @@ class Service:
                 ),
                 idle_s=s.sensor_idle_s,
                 standby_frames=s.standby is StandbyCopy.FRAMES,
-                fused=self.streams.configured,
+                fuses_later=lambda v, n: (
+                    self.streams.configured(v, n) and not self.streams.fusing()
+                ),
             )
             self._owned.start()
             self._owned.settle(timeout=5.0)  # this member's share subscribed before its token

@@ -294,6 +294,11 @@ class _Stream(Generic[F]):
     limits: tuple[int | None, int | None] = (None, None)  # (covered, published) stamps
     fenced_at: float | None = None
     borrowed: int = 0  # bytes of waiting frames kept on the budget
+    # A fused vehicle catching up: its state, and the sensors none of whose frames came past
+    # it yet, each with the stamps of its frames the takeover had (a new subscription's
+    # history may bring one of them again after the takeover finished).
+    held_by: Coverage[F] | None = None
+    catching: dict[str, set[int]] = field(default_factory=dict)
 
 
 @dataclass(slots=True)
@@ -619,6 +624,7 @@ class CustodyMachine(Generic[F]):
                 if s.phase in _HELD:
                     acts.append(Stash(stream))
                     s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
+                    s.held_by, s.catching = None, {}
                     self._fenced.add(stream)
             return acts
         if not self._fenced:
@@ -652,6 +658,7 @@ class CustodyMachine(Generic[F]):
         if s is None or s.phase not in _HELD:
             return []
         s.phase, s.fenced_at, s.limits = Phase.FENCED, now, (None, None)
+        s.held_by, s.catching = None, {}
         self._fenced.add(stream)
         return [Stash(stream)]
 
@@ -730,8 +737,18 @@ class CustodyMachine(Generic[F]):
         if t.snapshot is not None and (t.missed or not t.exact_ids):
             floor = 0 if t.heard is None else t.heard.next_id
             acts.append(RaiseIds(stream, floor))
+        # In stamp order, ties as a fused vehicle's reorder buffer orders them (its sensors'
+        # order, then seq): a fresh buffer lets a replayed frame go at once, and one of
+        # another sensor stamped the same coming after it would be late (a restored state
+        # has no history to re-process it into).
+        order = {name: i for i, name in enumerate(self.fused_sensors)}
         stamped = sorted(
-            ((self.peek(f)[2], f) for f in [*t.replay, *waiting]), key=lambda sf: sf[0] or 0
+            ((self.peek(f)[2], f) for f in [*t.replay, *waiting]),
+            key=lambda sf: (
+                sf[0] or 0,
+                order.get(self._sensor(sf[1]), len(order)),
+                self.peek(sf[1])[1] or 0,
+            ),
         )
         frames: list[F] = []
         seen: set[tuple[str, int]] = set()
@@ -755,6 +772,13 @@ class CustodyMachine(Generic[F]):
                 else Track(stream, f, replayed=True)
                 for f in frames
             ]
+            if cov is not None and self.fused_sensors:
+                s.phase, s.held_by = Phase.CATCHING_UP, cov
+                s.catching = {sensor: set() for sensor in self.fused_sensors}
+                for f in frames:
+                    sensor, stamp = self._sensor(f), self._stamp(f)
+                    if sensor in s.catching and stamp is not None:
+                        s.catching[sensor].add(stamp)
             return acts
         s.limits = (t.covered_stamp_ns, t.published_stamp_ns)
         s.phase = Phase.CATCHING_UP
@@ -778,6 +802,8 @@ class CustodyMachine(Generic[F]):
         return acts
 
     def _after_takeover(self, stream: str, s: _Stream[F], frame: F) -> Action[F]:
+        if s.held_by is not None:
+            return self._vehicle_after_takeover(stream, s, frame, s.held_by)
         covered, published = s.limits
         stamp = self.peek(frame)[2]
         if stamp is None:
@@ -788,6 +814,28 @@ class CustodyMachine(Generic[F]):
             return Track(stream, frame, publish=False)
         s.phase, s.limits = Phase.HELD, (None, None)  # past both: like any frame from here
         return Track(stream, frame)
+
+    def _vehicle_after_takeover(
+        self, stream: str, s: _Stream[F], frame: F, cov: Coverage[F]
+    ) -> Action[F]:
+        """A fused vehicle's frame after its takeover: one its state holds, or one the
+        takeover had (replayed or waiting: the cache's answer and a new subscription's
+        history can both bring it), is a copy, skipped until its sensor's first other frame
+        (from then on the sensor's order rules answer, as for any frame); all of them past,
+        the stream is held as any."""
+        sensor = self._sensor(frame)
+        if sensor not in s.catching:
+            return Track(stream, frame)
+        if cov.covers(frame) or self._stamp(frame) in s.catching[sensor]:
+            return Skip(stream, frame)
+        del s.catching[sensor]
+        if not s.catching:
+            s.phase, s.held_by = Phase.HELD, None
+        return Track(stream, frame)
+
+    def _sensor(self, frame: F) -> str:
+        key = self.peek(frame)[0]
+        return key.rsplit("/", 2)[-2] if key.count("/") >= 2 else ""
 
     def _standby_of(self, stream: str) -> _Standby[F] | None:
         held = self._standby.get(stream)
@@ -821,8 +869,8 @@ class CustodyMachine(Generic[F]):
         """A fused sensor's frame its own key was answered for (``answered_upto``)."""
         if not t.answered_upto:
             return False
-        key, _, stamp = self.peek(frame)
-        upto = t.answered_upto.get(key.rsplit("/", 2)[-2] if key.count("/") >= 2 else "")
+        stamp = self.peek(frame)[2]
+        upto = t.answered_upto.get(self._sensor(frame))
         return upto is not None and stamp is not None and stamp <= upto
 
     def _stamp(self, frame: F) -> int | None:

@@ -381,7 +381,7 @@ class ServiceSettings(BaseSettings):
     )
     standby: StandbyCopy = Field(
         default=StandbyCopy.CHECKPOINTS,
-        description="what a standby member hears of a sensor (subscribe = owned): checkpoints: the owner's checkpoints and the tracks, not the frames; a takeover replays the frames since the checkpoint from the vehicle's cache (a plain put's sensor, which has none, and a fused vehicle's sensors are still heard whole); frames: every frame too, kept since the checkpoint (standby_frames), the cache asked only past them",
+        description="what a standby member hears of a sensor (subscribe = owned): checkpoints: the owner's checkpoints and the tracks, not the frames; a takeover replays the frames since the checkpoint from the vehicle's cache (a plain put's sensor, which has none, is still heard whole, as is a sensor its vehicle will fuse while a rolling upgrade keeps fusion off); frames: every frame too, kept since the checkpoint (standby_frames), the cache asked only past them",
     )
     standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
         default=100,

@@ -15,8 +15,8 @@ advanced publisher's sensor: it has the owner's checkpoints, and the vehicle's c
 frames since. Once it owns the sensor it subscribes as any new owner does, and the frames the
 checkpoint lacks come from the cache (the history, then the takeover's fetch of the gap). A
 plain sensor, whose publisher keeps no cache, is heard by its standby too, and so is a sensor
-its vehicle fuses (``fused``): a vehicle's takeover replays its sensors' frames through one
-reorder window, which the kept copies fill in stamp order.
+its vehicle will fuse once the whole group can (``fuses_later``, a rolling upgrade): the
+copies kept of its own stream are the vehicle's first frames when the gate opens.
 
 The tracks of the same streams are heard per stream, by owner and standby (a standby learns
 how far planners have them; an owner hears whether another member took its stream over),
@@ -146,14 +146,15 @@ def release(
             held.lock.release()
 
 
-def hears_frames(role: Role, *, cached: bool, fused: bool, standby_frames: bool) -> bool:
+def hears_frames(role: Role, *, cached: bool, fuses_later: bool, standby_frames: bool) -> bool:
     """Whether a member subscribes to a sensor's frames: its owner always; its standby only
     when the frames cannot come from elsewhere at a takeover (no vehicle's cache: a plain
-    put), when its vehicle fuses (one reorder window over the kept copies), or when told to
+    put), when its vehicle will fuse once the whole group can (a rolling upgrade: its own
+    stream's frames kept are the vehicle's first when the gate opens), or when told to
     (``standby = "frames"``); nobody else."""
     if role is Role.NONE:
         return False
-    return role is Role.OWNER or standby_frames or not cached or fused
+    return role is Role.OWNER or standby_frames or not cached or fuses_later
 
 
 class NewSensors:
@@ -203,12 +204,13 @@ class Subscriptions:
         on_lost: Callable[[str, str, int], None] | None = None,
         idle_s: float = 60.0,
         standby_frames: bool = False,
-        fused: Callable[[str, str], bool] = lambda v, s: False,
+        fuses_later: Callable[[str, str], bool] = lambda v, s: False,
     ) -> None:
-        """``standby_frames``: a standby hears an advanced publisher's frames too; ``fused``:
-        whether a sensor is one its vehicle fuses (heard by the standby whatever the gate)."""
+        """``standby_frames``: a standby hears an advanced publisher's frames too;
+        ``fuses_later``: whether a sensor is one its vehicle fuses once the whole group can
+        (heard by its standby until then)."""
         self.session, self.keys, self.membership = session, keys, membership
-        self._standby_frames, self._fused = standby_frames, fused
+        self._standby_frames, self._fuses_later = standby_frames, fuses_later
         self._handler, self._on_miss, self._history = handler, on_miss, history_frames
         self._stream_of = stream_of  # a fused sensor's role is its vehicle's
         self._tracks, self._intake = tracks, intake  # intake: plain sensors heard (a scout)
@@ -353,7 +355,7 @@ class Subscriptions:
         return hears_frames(
             self.membership.role(self._stream_of(vehicle, name)),
             cached=sensor in tokened,
-            fused=self._fused(vehicle, name),
+            fuses_later=self._fuses_later(vehicle, name),
             standby_frames=self._standby_frames,
         )
 
