@@ -740,26 +740,23 @@ class CustodyMachine(Generic[F]):
         # In stamp order, ties as a fused vehicle's reorder buffer orders them (its sensors'
         # order, then seq): a fresh buffer lets a replayed frame go at once, and one of
         # another sensor stamped the same coming after it would be late (a restored state
-        # has no history to re-process it into).
+        # has no history to re-process it into). Each header is read once.
         order = {name: i for i, name in enumerate(self.fused_sensors)}
-        stamped = sorted(
-            ((self.peek(f)[2], f) for f in [*t.replay, *waiting]),
-            key=lambda sf: (
-                sf[0] or 0,
-                order.get(self._sensor(sf[1]), len(order)),
-                self.peek(sf[1])[1] or 0,
-            ),
+        heads = [(*self.peek(f), f) for f in [*t.replay, *waiting]]
+        peeked = sorted(
+            ((key, _sensor_of(key), seq, stamp, f) for key, seq, stamp, f in heads),
+            key=lambda p: (p[3] or 0, order.get(p[1], len(order)), p[2] or 0),
         )
         frames: list[F] = []
+        taken: list[tuple[str, int | None]] = []  # (sensor, stamp) of each of ``frames``
         seen: set[tuple[str, int]] = set()
-        for stamp, f in stamped:
-            if stamp is None:
-                frames.append(f)
-                continue
-            fid = (self.peek(f)[0], stamp)
-            if fid not in seen:
-                seen.add(fid)
-                frames.append(f)
+        for key, sensor, _, stamp, f in peeked:
+            if stamp is not None:
+                if (key, stamp) in seen:
+                    continue
+                seen.add((key, stamp))
+            frames.append(f)
+            taken.append((sensor, stamp))
         s.phase = Phase.HELD
         if stream.endswith(f"/{VEHICLE_STREAM}"):
             # A fused vehicle's frames go through its reorder buffer, which sends no message
@@ -775,8 +772,7 @@ class CustodyMachine(Generic[F]):
             if cov is not None and self.fused_sensors:
                 s.phase, s.held_by = Phase.CATCHING_UP, cov
                 s.catching = {sensor: set() for sensor in self.fused_sensors}
-                for f in frames:
-                    sensor, stamp = self._sensor(f), self._stamp(f)
+                for sensor, stamp in taken:
                     if sensor in s.catching and stamp is not None:
                         s.catching[sensor].add(stamp)
             return acts
@@ -834,8 +830,7 @@ class CustodyMachine(Generic[F]):
         return Track(stream, frame)
 
     def _sensor(self, frame: F) -> str:
-        key = self.peek(frame)[0]
-        return key.rsplit("/", 2)[-2] if key.count("/") >= 2 else ""
+        return _sensor_of(self.peek(frame)[0])
 
     def _standby_of(self, stream: str) -> _Standby[F] | None:
         held = self._standby.get(stream)
@@ -882,6 +877,12 @@ class CustodyMachine(Generic[F]):
 
 
 _HELD = (Phase.HELD, Phase.CATCHING_UP)
+
+
+def _sensor_of(key: str) -> str:
+    """The sensor's name in a detections key (``<prefix>/<vehicle>/<sensor>/detections``)."""
+    return key.rsplit("/", 2)[-2] if key.count("/") >= 2 else ""
+
 
 __all__ = [
     "Action", "AnnounceMissed", "Ask", "Budget", "Coverage", "CustodyMachine", "Drop", "FetchCache",
