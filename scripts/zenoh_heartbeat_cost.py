@@ -5,7 +5,9 @@ publishers, heartbeat recovery: the service's own options), a tracks subscriber 
 publisher. A child process like a fleet: per sensor an advanced publisher (cache, heartbeat
 every ``--heartbeat`` s, as ``DetectionPublisher``) putting 10 KB at ``--rate`` Hz. The
 receiver's CPU (user + system, all its threads) over the window is printed per sensor count,
-with heartbeats and without (plain publishers), the rows alternated.
+with heartbeats, with heartbeats and each publisher's heartbeat key declared on the receiving
+session (as server/subscriptions.py does), and without heartbeats (plain publishers), the rows
+alternated.
 
     .venv/bin/python scripts/zenoh_heartbeat_cost.py --sensors 150,300,600 --rate 0.1
 """
@@ -59,12 +61,18 @@ def fleet(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: f
     session.close()
 
 
-def member(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: float) -> str:
+def member(
+    endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: float, declare: bool
+) -> str:
     session = zenoh.open(ZenohOptions(listen=[endpoint]).to_config())
     heard = [0]
+    sources: dict[str, tuple[str, int]] = {}
 
-    def count(_: zenoh.Sample) -> None:
+    def count(sample: zenoh.Sample) -> None:
         heard[0] += 1
+        info = sample.source_info
+        if info is not None and info.source_id is not None:
+            sources[str(sample.key_expr)] = (str(info.source_id.zid), int(info.source_id.eid))
 
     held: list[Any] = []
     for i in range(sensors):
@@ -83,9 +91,13 @@ def member(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: 
             )
         )
         held.append(session.declare_publisher(key(i, "tracks")))
-    args = [endpoint, sensors, rate, seconds + 4, heartbeat]
+    args = [endpoint, sensors, rate, seconds + 5, heartbeat]
     child = subprocess.Popen([sys.executable, __file__, "--fleet", *map(str, args)])
     time.sleep(4)  # the fleet's declarations, a first round of frames
+    if declare:  # a heartbeat's key is its publisher's token's: the key, zid and eid
+        for k, (zid, eid) in list(sources.items()):
+            held.append(session.declare_keyexpr(f"{k}/@adv/pub/{zid}/{eid}/_"))
+    time.sleep(1)
     r0, h0 = resource.getrusage(resource.RUSAGE_SELF), heard[0]
     time.sleep(seconds)
     r1, h1 = resource.getrusage(resource.RUSAGE_SELF), heard[0]
@@ -93,6 +105,7 @@ def member(endpoint: str, sensors: int, rate: float, seconds: float, heartbeat: 
     session.close()
     cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
     hb = f"every {heartbeat:g} s" if heartbeat > 0 else "none"
+    hb += f", {len(sources)} keys declared" if declare else ""
     per_frame = cpu / max(h1 - h0, 1) * 1e6
     return (
         f"| {sensors} | {rate:g} Hz | {hb} | {h1 - h0} | {cpu / seconds:.3f} | {per_frame:.0f} µs |"
@@ -115,8 +128,8 @@ def main() -> None:
     print("| sensors | rate | heartbeat | frames heard | member's cores | CPU per frame |")
     print("|---|---|---|---|---|---|")
     for n in [int(s) for s in a.sensors.split(",")]:
-        for hb in (a.heartbeat, 0.0):
-            print(member(endpoint, n, a.rate, a.seconds, hb), flush=True)
+        for hb, declare in ((a.heartbeat, False), (a.heartbeat, True), (0.0, False)):
+            print(member(endpoint, n, a.rate, a.seconds, hb, declare), flush=True)
 
 
 if __name__ == "__main__":

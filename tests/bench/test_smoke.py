@@ -15,7 +15,7 @@ import pytest
 
 from simpletrack.bench import loadgen
 from simpletrack.bench.core import synthetic_stream
-from simpletrack.bench.service import summarize_profile
+from simpletrack.bench.service import gil_ms_per_frame, summarize_profile
 from simpletrack.bench.stages import STAGES, TARGETS, MissingStageTarget, StageTimer
 from simpletrack.cli.bench import drawn
 from simpletrack.cli.main import main
@@ -200,6 +200,7 @@ def test_mistakes_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixt
         ["service", "--sensors", "0"],
         ["service", "--seconds", "0"],
         ["service", "--source", "nuscenes", "--data", str(tmp_path / "nowhere")],
+        ["service", "--profile-gil"],
     ]
     for args in bad:
         assert main(["bench", *args]) == 2, args
@@ -246,6 +247,14 @@ def test_profile_summary_ranks_functions(tmp_path: Path) -> None:
     assert prof["self"][0] == ("step (tracker.py)", 0.75)
     assert dict(prof["inclusive"])["run (worker.py)"] == 1.0
     assert prof["roles"] == [("other", 1.0)]
+
+
+def test_gil_time_per_frame_is_the_held_share_of_the_window_over_its_frames() -> None:
+    # 600 of 2,400 samples (12 s at 200 Hz) held the lock: a quarter of a 12 s window, 7,200
+    # frames in it (60 sensors at 10 Hz): 3 s / 7,200 = 0.417 ms a frame.
+    assert gil_ms_per_frame(600, 12, 12.0, 7200) == pytest.approx(0.4167, abs=1e-4)
+    assert gil_ms_per_frame(0, 12, 12.0, 7200) == 0.0
+    assert gil_ms_per_frame(10, 12, 12.0, 0) > 0  # no frames: no division by zero
 
 
 @pytest.mark.zenoh

@@ -44,9 +44,10 @@ def planner(router: Router) -> Iterator[Client]:
     c.close()
 
 
-def _stream_through_an_outage(router: Router, pub: DetectionPublisher) -> int:
-    """1 s of frames, the router killed for OUTAGE_S, 2 s more; returns how many were sent."""
-    k = 0
+def _stream_through_an_outage(router: Router, pub: DetectionPublisher, first: int = 0) -> int:
+    """1 s of frames, the router killed for OUTAGE_S, 2 s more; returns the next seq (seqs
+    ``first`` onwards were sent)."""
+    k = first
     t0 = time.monotonic()
 
     def run_until(t: float) -> None:
@@ -54,7 +55,7 @@ def _stream_through_an_outage(router: Router, pub: DetectionPublisher) -> int:
         while time.monotonic() - t0 < t:
             pub.publish(moving_cars(k), stamp_ns=stamp(k))
             k += 1
-            time.sleep(max(0.0, t0 + k * PERIOD_S - time.monotonic()))
+            time.sleep(max(0.0, t0 + (k - first) * PERIOD_S - time.monotonic()))
 
     run_until(1.0)
     router.kill()
@@ -82,6 +83,30 @@ def test_a_cache_covering_the_outage_gets_every_frame_tracked_in_order(
     seqs = _tracked(planner, "veh-rec/lidar")
     assert seqs == list(range(sent)), "recovered frames must come before later live ones"
     assert metric(service.metrics(), "simpletrack_frames_dropped_total", reason="missed") == 0
+
+
+def test_a_vehicle_streaming_before_the_service_started_loses_nothing_to_an_outage(
+    router: Router, tmp_path: Path, planner: Client
+) -> None:
+    # Its subscription takes history_frames (1) at the start, not its whole cache. Until
+    # 2026-12-06 the returning publisher's cache was asked with that bound too, and the
+    # outage's 29 frames were counted as missed (announced) instead of recovered.
+    options = ZenohOptions(mode="client", connect=[router.endpoint])
+    sensor = "veh-old/lidar"
+    with DetectionPublisher.connect("veh-old", "lidar", classes=("Car",), options=options) as pub:
+        for k in range(3):
+            pub.publish(moving_cars(k), stamp_ns=stamp(k))
+        svc = start_client_service(tmp_path, router.endpoint, instance="outage-old")
+        try:
+            wait_for(lambda: svc.http("/readyz")[0] == 200, 30, "the service ready")
+            wait_for(lambda: planner.session.info.routers_zid() != [], 10, "the planner's router")
+            wait_for(lambda: _tracked(planner, sensor) == [2], 10, "the latest cached frame")
+            sent = _stream_through_an_outage(router, pub, first=3)
+            wait_for(lambda: len(_tracked(planner, sensor)) >= sent - 2, 15, "every frame")
+            assert _tracked(planner, sensor) == list(range(2, sent))
+            assert metric(svc.metrics(), "simpletrack_frames_dropped_total", reason="missed") == 0
+        finally:
+            svc.stop()
 
 
 def test_an_outage_longer_than_the_cache_counts_and_announces_every_missed_frame(

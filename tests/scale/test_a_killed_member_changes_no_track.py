@@ -6,7 +6,8 @@ twice: the member that took it over publishes it again, in case the kill cut its
 and the tracks (ids and boxes) are those one uninterrupted tracker gives on the same frames,
 frame for frame. Peer to peer and through a router process with the members its clients,
 both with the default per-sensor subscriptions (each member hears only the sensors it owns
-or stands by for), and peer to peer with subscribe = "wide"."""
+or stands by for), and peer to peer with subscribe = "wide". Peer to peer, a checkpoint
+goes out every 25 frames, so a takeover replays many frames from the vehicles' caches."""
 
 from __future__ import annotations
 
@@ -48,6 +49,9 @@ def test_kill_join_and_stop_leave_every_frame_one_equal_answer(
     group = Group(tmp_path, router=None if router is None else router.endpoint, state=True)
     if through == "wide":  # one subscriber each on every frame and every tracks message
         group.env["SIMPLETRACK_SUBSCRIBE"] = "wide"
+    if through == "peers":  # checkpoints 2.5 s apart: the kill's takeovers replay 10-25 frames
+        group.env["SIMPLETRACK_CHECKPOINT_FRAMES"] = "25"
+        group.env["SIMPLETRACK_CHECKPOINT_MAX_AGE_S"] = "30"
     fleet = None
     try:
         for name in MEMBERS:

@@ -40,6 +40,10 @@ Guarantees, one table test (or a group) each:
      owner never answered, is asked for at once (those frames wait for no next frame); one
      whose frames were all answered, or still stood by for, or asked already, or that its
      sensors' frames no longer go to (its vehicle fuses now), is not.
+ G14 a fresh start of sensors first published while this member runs asks their vehicle's
+     cache for all it keeps first: the frames a new subscription's history dropped are
+     tracked, in stamp order, each once; a fused vehicle's other sensors' cached frames
+     (published before this member started) are not tracked again.
 """
 
 from __future__ import annotations
@@ -679,3 +683,46 @@ def test_g13_a_sensor_stream_its_vehicle_fuses_now_is_left_to_the_vehicle() -> N
     m = standby_of(2, 3)
     assert m.promoted(lambda _: view(), heard(2), 1.0, current=lambda s: s != S) == []
     assert m.phase(S) is Phase.UNHELD
+
+
+# ---------------------------------------------------------------------- G14
+def test_g14_a_fresh_sensors_start_replays_its_vehicles_whole_cache_first() -> None:
+    # zenoh-ext 1.10 delivered frame 1 live and dropped 0 from the history (1 in 40 replays).
+    m = machine()
+    assert m.frame(S, f(1), view(members=(ME,)), 0.0) == [Resolve(S)]
+    assert m.frame(S, f(2), view(members=(ME,)), 0.0) == []  # waits behind the cache
+    m.answered(S, [], nobody)
+    assert m.adopted(S, None, frozenset({"lidar"})) == [FetchCache(S)]
+    assert m.phase(S) is Phase.FILLING
+    acts = m.cached(S, [f(2), f(0), f(1), f(3)])  # any order; 2 waited, 1 came live
+    assert tracked(acts) == [(0, True), (1, True), (2, True), (3, True)]
+    assert m.frame(S, f(3), view(members=(ME,)), 0.0) == [Skip(S, f(3))]  # its live copy
+    assert tracked(m.frame(S, f(4), view(members=(ME,)), 0.0)) == [(4, True)]
+
+
+def test_g14_a_sensor_not_fresh_starts_at_its_first_frame() -> None:
+    m = machine()
+    assert m.frame(S, f(5), view(members=(ME,)), 0.0) == [Resolve(S)]
+    m.answered(S, [], nobody)
+    assert tracked(m.adopted(S, None)) == [(5, True)]
+
+
+def test_g14_a_fresh_start_with_a_state_fills_only_its_gap() -> None:
+    # A checkpoint exists: the state, not the cache's oldest frames, is where it starts.
+    m = machine()
+    assert m.frame(S, f(4), view(), 0.0) == [Ask(S)]
+    t = m.answered(S, [snap(3)], nobody)
+    cov = SensorCoverage(t.snapshot.last_seq, t.snapshot.last_stamp_ns, peek)  # type: ignore[union-attr]
+    assert tracked(m.adopted(S, cov, frozenset({"lidar"}))) == [(4, True)]
+
+
+def test_g14_a_fused_vehicles_fresh_sensor_replays_its_cache_not_the_others() -> None:
+    m = machine()
+    m.fused_sensors = ("lidar", "cam")
+    v = "car/@vehicle"
+    assert m.frame(v, f(2, LIDAR), view(), 0.0) == [Ask(v)]
+    m.answered(v, [], nobody)
+    assert m.adopted(v, None, frozenset({"lidar"})) == [FetchCache(v)]
+    acts = m.cached(v, [f(0, CAM), f(1, CAM), f(0, LIDAR), f(1, LIDAR), f(2, LIDAR)])
+    done = [(a.frame[0].split("/")[2], a.frame[1]) for a in acts if isinstance(a, Track)]
+    assert done == [("lidar", 0), ("lidar", 1), ("lidar", 2)]

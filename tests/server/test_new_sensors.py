@@ -1,5 +1,5 @@
 """Which subscriptions take a vehicle's whole cache: a sensor first published while the member
-runs, however late its subscription comes (server/subscriptions.py ``NewSensors``).
+runs, however late its subscription comes (server/sensor_tokens.py ``NewSensors``).
 
 Until 2026-12-06 that held only within 5 s of the sensor's first token. A member whose
 subscriptions thread was late past that (seen once in CI: ``simpletrack replay kitti --rate
@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import pytest
 
-from simpletrack.server.subscriptions import NewSensors
+from simpletrack.server.sensor_tokens import NewSensors, fresh_of
 
 S = "truck-07/lidar"
 
@@ -69,3 +69,18 @@ def test_a_new_sensors_subscription_takes_the_whole_cache(steps: list[Step], fre
     for step in steps:
         step(new)
     assert new.take(S) is fresh
+
+
+@pytest.mark.parametrize(
+    ("fresh", "stream", "claimed"),
+    [
+        ({"car/lidar", "car/cam"}, "car/lidar", {"car/lidar"}),  # a sensor's own stream
+        ({"car/lidar", "car/cam", "bus/lidar"}, "car/@vehicle", {"car/lidar", "car/cam"}),
+        ({"car/lidar"}, "car/cam", set()),  # not fresh: starts at its first frame
+        ({"carx/lidar"}, "car/@vehicle", set()),  # another vehicle, a longer name
+    ],
+)
+def test_which_fresh_sensors_a_streams_takeover_claims(
+    fresh: set[str], stream: str, claimed: set[str]
+) -> None:
+    assert fresh_of(fresh, stream) == claimed

@@ -254,6 +254,11 @@ def service_tables(doc: dict[str, Any]) -> str:
         out.append(f"vehicles per core: {fmt(cap['vehicles_per_core'], 1)} (two streams each)")
     for s in doc["steps"]:
         prof = s.get("profile")
+        if prof and "gil_ms_per_frame" in prof:
+            out.append(
+                f"py-spy --gil, {s['sensors']} sensors: the interpreter lock held "
+                f"{prof['gil_ms_per_frame']:.3f} ms per frame"
+            )
         if prof and "self" in prof:
             top = ", ".join(f"{name} {100 * share:.0f}%" for name, share in prof["self"][:6])
             out.append(f"py-spy, {s['sensors']} sensors, innermost functions: {top}")

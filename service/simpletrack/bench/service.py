@@ -82,6 +82,7 @@ class ServiceBenchOptions:
     echo: bool
     profile_dir: Path | None
     p99_limit_ms: float = P99_LIMIT_MS
+    profile_gil: bool = False  # py-spy --gil: only samples holding the interpreter lock
     drain_s: float = 5.0
     subscribe: str = "owned"  # the members' subscribe setting (the service's default)
     fused: bool = False  # vehicles of a lidar and a camera, fused (loadgen.LoadSpec.fused)
@@ -228,8 +229,19 @@ def running(kind: str, opts: ServiceBenchOptions, tmp: Path) -> Iterator[Server]
 
 
 # ----------------------------------------------------------------------------- profiling
-def start_profiler(pid: int, seconds: float, out: Path) -> subprocess.Popen[bytes] | None:
-    """py-spy on the server for the window (all threads, without pausing it)."""
+PROFILE_RATE_HZ = 200
+
+
+def profiled_seconds(seconds: float) -> int:
+    """How long py-spy records a window of ``seconds`` (whole seconds, at least one)."""
+    return max(1, round(seconds))
+
+
+def start_profiler(
+    pid: int, seconds: float, out: Path, gil: bool = False
+) -> subprocess.Popen[bytes] | None:
+    """py-spy on the server for the window (all threads, without pausing it); ``gil``: only
+    the samples of the thread holding the interpreter lock."""
     exe = shutil.which("py-spy") or str(Path(sys.executable).parent / "py-spy")
     if not Path(exe).exists():
         return None
@@ -239,16 +251,26 @@ def start_profiler(pid: int, seconds: float, out: Path) -> subprocess.Popen[byte
         "--pid",
         str(pid),
         "--duration",
-        str(max(1, round(seconds))),
+        str(profiled_seconds(seconds)),
         "--rate",
-        "200",
+        str(PROFILE_RATE_HZ),
         "--nonblocking",
+        *(["--gil"] if gil else []),
         "--format",
         "raw",
         "--output",
         str(out),
     ]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def gil_ms_per_frame(samples: int, profiled_s: float, window_s: float, frames: int) -> float:
+    """The interpreter lock's time per frame from a ``--gil`` profile: the share of the
+    profile's samples that found the lock held, over the frames of the measured window. py-spy
+    counts a thread that holds the lock while the OS has it descheduled: a loaded machine
+    inflates it, so compare only runs alternated on one machine."""
+    held = samples / (PROFILE_RATE_HZ * profiled_s)
+    return round(1e3 * held * window_s / max(frames, 1), 4)
 
 
 def summarize_profile(path: Path, top: int = 15) -> dict[str, Any]:
@@ -411,7 +433,7 @@ def measure_step(
         m0 = scrape_all(servers) if tracker else {}
         if opts.profile_dir is not None and tracker and len(servers) == 1:
             prof_path = opts.profile_dir / f"service-{sensors}-sensors.txt"
-            profiler = start_profiler(server.proc.pid, opts.seconds, prof_path)
+            profiler = start_profiler(server.proc.pid, opts.seconds, prof_path, opts.profile_gil)
         gens.expect_all("end", opts.seconds + 60.0)
         cpu1, t1 = cpu_seconds_all(servers), time.monotonic()
         m1 = scrape_all(servers) if tracker else {}
@@ -469,6 +491,10 @@ def measure_step(
             "fusion_frames": _counters(m2, "simpletrack_fusion_frames_total"),
         }
     if profile is not None:
+        if opts.profile_gil and "samples" in profile:
+            profile["gil_ms_per_frame"] = gil_ms_per_frame(
+                profile["samples"], profiled_seconds(opts.seconds), window, done
+            )
         step["profile"] = profile
     limit = opts.p99_limit_ms
     if opts.fused:  # a lidar frame waits for the camera's, half a period later, by design

@@ -35,6 +35,8 @@ examples:
 
   # profile the service with py-spy while it is under load (pip install py-spy)
   simpletrack bench service --sensors 1,10,20 --profile out/profiles/
+  # the interpreter lock's time per frame (py-spy --gil), e.g. against another revision's
+  simpletrack bench service --sensors 60 --seconds 25 --no-echo --profile out/gil --profile-gil
 
 Figures depend on the machine and on what else runs on it: quote medians and ratios from one
 run, with the load average the JSON records. docs/BENCHMARKS.md explains every figure.
@@ -306,6 +308,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         type=Path,
         metavar="DIR",
         help="record each service step with py-spy into DIR (needs py-spy)",
+    )
+    svc.add_argument(
+        "--profile-gil",
+        action="store_true",
+        help="with --profile: record only the samples holding the interpreter lock (py-spy "
+        "--gil) and report the lock's time per frame",
     )
     _add_generator_args(svc)
     svc.add_argument("--json", type=Path, help="write every figure to this JSON file")
@@ -729,6 +737,8 @@ def run_service(args: argparse.Namespace) -> int:
     heartbeat = _heartbeat(args)
     if not (1 <= args.queue_size <= 100_000):
         raise UserError(f"--queue-size {args.queue_size} must be in 1..100000")
+    if args.profile_gil and args.profile is None:
+        raise UserError("--profile-gil needs --profile DIR")
     if args.profile is not None:
         import shutil
 
@@ -769,6 +779,7 @@ def run_service(args: argparse.Namespace) -> int:
         budget_s=args.budget,
         echo=not args.no_echo and not args.fused,  # the echo server answers no vehicle key
         profile_dir=args.profile,
+        profile_gil=args.profile_gil,
         p99_limit_ms=args.p99_limit,
         fused=args.fused,
         generator_processes=processes,

@@ -5,7 +5,8 @@ Errors are published with the ``congestion_control`` setting (``block`` by defau
 blocking put waits while the link to a subscriber of that key has no room: a subscriber of
 ``<prefix>/*/*/errors`` slower than a garbage flood is refused held every put on its link.
 Published by the workers, such a put held the worker, and every sensor on it waited (a new
-sensor's second frame 0.35-1.2 s). The workers hand their encoded notices here and go on.
+sensor's second frame 0.35-1.2 s). The workers hand their encoded notices here and go on;
+so does the miss listener (server/misses.py), with the notice of frames lost in transport.
 
 - **Order.** One FIFO for the member: a sensor's notices are published in the order its
   worker handed them over. A tracks message of a sensor with notices still waiting here goes
@@ -63,8 +64,10 @@ class Announcer:
         self.limit_bytes, self._log_interval_s, self._clock = limit_bytes, log_interval_s, clock
         self._items: deque[_Item] = deque()
         self._bytes = 0
-        # stream -> its items waiting or being published. Only a stream's own worker adds
-        # to it, so a stream absent here has nothing pending (read without the lock).
+        # stream -> its items waiting or being published. Only a stream's own worker and the
+        # miss listener add to it, the listener before it hands on the frames after a gap:
+        # a stream absent here has nothing pending that a worker's frame must follow (read
+        # without the lock).
         self._pending: dict[Stream, int] = {}
         self._cond = threading.Condition()
         self._closing = False

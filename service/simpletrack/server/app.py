@@ -47,6 +47,7 @@ from simpletrack.server.metrics import HttpEndpoint, Metrics, package_version
 from simpletrack.server.misses import MissCounter
 from simpletrack.server.outbox import MSGPACK, congestion_control, dropped, frame_error, put
 from simpletrack.server.plausibility import StartThresholds
+from simpletrack.server.sensor_tokens import SensorTokens
 from simpletrack.server.sensors import SensorBudget
 from simpletrack.server.settings import ServiceSettings, StandbyCopy, Subscribe, config_digest
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
@@ -124,6 +125,7 @@ class Service:
         self._subscriber: Any = None  # the detections subscriber: undeclared first at stop
         self._token: Any = None
         self._owned: Subscriptions | None = None  # subscribe = "owned"
+        self._tokens: SensorTokens | None = None  # the sensors published (the same)
         self._handoff_queryables: list[Any] = []
         # How this member's name appears in its own tracks messages (msgpack key and value).
         self._own_instance = msgpack.packb("instance") + msgpack.packb(settings.instance)
@@ -155,9 +157,17 @@ class Service:
             instance=s.instance,
             digest=digest,
             handoff_timeout_s=s.handoff_timeout_s,
+            checkpoint_frames=s.checkpoint_frames,
+            checkpoint_max_age_s=s.checkpoint_max_age_s,
         )
         if s.group:
             self.membership.start(session)
+            if s.subscribe is Subscribe.OWNED:
+                # With the members' tokens: the sensors' tokens out already arrive in the
+                # settle time, before the mark past which a sensor is new to the fleet.
+                self._tokens = SensorTokens(session, self.keys)
+                self._tokens.start(plain=True)
+                shared.fresh = self._tokens.claim_fresh
             # Whose tracks planners already have: a takeover publishes only past them.
             # ("owned": per stream, with the detections, server/subscriptions.py.)
             if s.subscribe is Subscribe.WIDE:
@@ -183,8 +193,9 @@ class Service:
         self.metrics.watch_burst(self.burst)
         # The workers' refusal notices, published from a thread of their own: a slow
         # subscriber of an errors key never holds a worker (server/announcer.py).
-        self._announcer = Announcer(session, congestion_control(s.congestion_control), self.metrics)
-        self._announcer.start()
+        announcer = Announcer(session, congestion_control(s.congestion_control), self.metrics)
+        self._announcer = announcer
+        announcer.start()
         ctx = Context(
             settings=s,
             session=session,
@@ -252,12 +263,13 @@ class Service:
                 )
                 for name in streams
             ]
-        self.misses = misses = MissCounter(intake, self.keys, self.metrics, s.instance, session)
-        if s.group and s.subscribe is Subscribe.OWNED:
+        self.misses = misses = MissCounter(intake, self.keys, self.metrics, s.instance, announcer)
+        if self._tokens is not None:
             self._owned = Subscriptions(
                 session,
                 self.keys,
                 self.membership,
+                self._tokens,
                 lambda: intake.handler(misses),
                 misses.on_miss,
                 s.history_frames,
@@ -734,6 +746,8 @@ class Service:
             self._subscriber = None
         if self._owned is not None:
             self._owned.close()
+        if self._tokens is not None:
+            self._tokens.close()  # a start stopped before its subscriptions (a twin)
         deadline = time.monotonic() + s.shutdown_timeout_s
         for w in self._workers:
             w.drain_deadline = deadline

@@ -16,6 +16,7 @@ from typing import TypeAlias
 
 import zenoh
 
+from simpletrack.server.checkpoint_rule import CheckpointMark, checkpoint_due
 from simpletrack.server.custody_machine import (
     Action,
     Budget,
@@ -59,12 +60,17 @@ class Shared:
     instance: str
     digest: str
     handoff_timeout_s: float
+    checkpoint_frames: int  # the checkpoint rule's (server/checkpoint_rule.py)
+    checkpoint_max_age_s: float
     # vehicle/sensor -> the last tracks frame heard on its key (any member's)
     published: dict[str, Heard] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
     counts: dict[str, int] = field(  # for the status reply; the metrics count the same
         default_factory=lambda: {"handoffs_in": 0, "handoffs_out": 0, "failovers": 0}
     )
+    # A stream's sensors first published while this member runs, claimed by its takeover
+    # (server/sensor_tokens.py; none without per-sensor subscriptions).
+    fresh: Callable[[str], frozenset[str]] = lambda stream: frozenset()
 
     def count(self, what: str) -> None:
         with self.lock:
@@ -174,7 +180,8 @@ class Custody:
         elif isinstance(adopted, SensorState) and t.snapshot is not None:
             coverage = SensorCoverage(t.snapshot.last_seq, t.snapshot.last_stamp_ns, peek)
         self._taking[stream] = t
-        return self._done(stream, self.machine.adopted(stream, coverage))
+        fresh = self.shared.fresh(stream)
+        return self._done(stream, self.machine.adopted(stream, coverage, fresh))
 
     def cached(self, stream: str, frames: Sequence[Inbound], asked: int | None = None) -> Actions:
         return self._done(stream, self.machine.cached(stream, frames, asked))
@@ -350,23 +357,30 @@ class Custody:
 
     # ------------------------------------------------------------------ checkpoints
     def send_checkpoints(self, final: bool = False, new_standby_only: bool = False) -> int:
-        """Each held sensor changed since its last checkpoint goes to its standby;
+        """Each held sensor due a checkpoint goes to its standby (server/checkpoint_rule.py);
         ``new_standby_only``: only those whose standby has none yet (a new sensor, a new
         standby); ``final``: every held sensor, at shutdown."""
         sh = self.shared
+        now = time.monotonic()
         sent = 0
         for key, s in list(self.registry.sensors.items()):
             standby = sh.membership.standby(key)
             if standby is None:
                 continue
-            mark = (standby, s.frames)
-            last = s.checkpoint_mark
-            first = last is None or last[0] != standby  # this standby has no state of it
-            if not (final or first or (last != mark and not new_standby_only)):
+            if not checkpoint_due(
+                s.checkpoint_mark,
+                standby,
+                s.frames,
+                now,
+                sh.checkpoint_frames,
+                sh.checkpoint_max_age_s,
+                final=final,
+                new_standby_only=new_standby_only,
+            ):
                 continue
             if not self._put_checkpoint(standby, s.vehicle, s.sensor, self.registry.state_of(s)):
                 continue
-            s.checkpoint_mark = mark
+            s.checkpoint_mark = CheckpointMark(standby, s.frames, now)
             sent += 1
         if sent:
             sh.metrics.checkpoints_sent.inc(sent)

@@ -258,6 +258,9 @@ class Takeover(Generic[F]):
     # A fused vehicle's sensors: the stamp each was answered up to on its own key (by a
     # member of before fusion); their frames up to it are skipped, wherever they come from.
     answered_upto: dict[str, int] = field(default_factory=dict)
+    # Its sensors first published while this member ran (none of their frames tracked
+    # anywhere): a fresh start replays every frame their vehicle's cache keeps.
+    fresh: frozenset[str] = frozenset()
 
     @property
     def covered_stamp_ns(self) -> int | None:
@@ -503,16 +506,26 @@ class CustodyMachine(Generic[F]):
         s.takeover = t
         return t
 
-    def adopted(self, stream: str, coverage: Coverage[F] | None) -> list[Action[F]]:
+    def adopted(
+        self, stream: str, coverage: Coverage[F] | None, fresh: frozenset[str] = frozenset()
+    ) -> list[Action[F]]:
         """The state is in the registry (``coverage``: what it holds; None: a fresh start).
         The frames it lacks are those kept and waiting; a hole among them is asked of the
-        vehicle's cache (restore, failover and hand-off alike) before the replay."""
+        vehicle's cache (restore, failover and hand-off alike) before the replay. A fresh
+        start of sensors first published while this member runs (``fresh``, their names)
+        asks the cache for all it keeps of them: a new subscription's history may lack the
+        first (zenoh-ext 1.10 delivers a live frame ahead of the history still pending and
+        then drops that history as old: seen once in 40 replays, silently)."""
         s = self._streams[stream]
         t = s.takeover
         assert t is not None, "adopted before answered"
         t.coverage = coverage
         if coverage is None:
             t.replay = list(t.kept)
+            if fresh:
+                t.fresh = fresh
+                s.phase = Phase.FILLING
+                return [FetchCache(stream)]
             return self._complete(stream, s, t)
         t.replay = [f for f in t.kept if not coverage.covers(f)]
         t.missed = coverage.holes([*t.replay, *s.waiting])
@@ -531,7 +544,11 @@ class CustodyMachine(Generic[F]):
         cov = t.coverage
         have = {self._id(f) for f in [*t.replay, *s.waiting]}
         extra = [
-            f for f in frames if (cov is None or not cov.covers(f)) and self._id(f) not in have
+            f
+            for f in frames
+            if (cov is None or not cov.covers(f))
+            and self._id(f) not in have
+            and (not t.fresh or self._sensor(f) in t.fresh)  # others' old frames: not again
         ]
         t.from_cache += len(extra)
         t.replay += extra

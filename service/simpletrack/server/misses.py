@@ -1,6 +1,12 @@
 """Frames lost in transport: the advanced subscriber recovers what it can from a vehicle's
 cache; what it cannot is counted per sensor and announced on the sensor's errors key.
 
+The notice goes through the member's announcer, like the workers' refusals: published with
+the ``congestion_control`` setting from the announcer's thread, so a miss listener (Zenoh's
+own thread) never waits, and the sensor's tracks of the frames after the gap go behind it.
+Until 2026-12-06 it was put from the listener with ``DROP``, ahead of nothing: once in CI a
+planner got every track after an outage and never the notice of the frames missed in it.
+
 Zenoh reports a miss by publisher (its entity id), not by key: the subscriber callback
 notes which key each publisher publishes on, so that a miss can be told to its sensor.
 """
@@ -13,9 +19,10 @@ from collections.abc import Callable
 import zenoh
 from zenoh import ext
 
+from simpletrack.server.announcer import Announcer
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
-from simpletrack.server.outbox import missed_notice, put
+from simpletrack.server.outbox import missed_notice
 from simpletrack.wire.codec import encode
 from simpletrack.wire.keys import Keys
 
@@ -42,13 +49,13 @@ class MissCounter:
         keys: Keys,
         metrics: Metrics,
         instance: str,
-        session: zenoh.Session,
+        announcer: Announcer,
     ) -> None:
         self._intake = intake
         self._keys = keys
         self._metrics = metrics
         self._instance = instance
-        self._session = session
+        self._announcer = announcer
         self._keys_of: dict[Source, str] = {}
         self._lock = threading.Lock()
         self.by_sensor: dict[tuple[str, str], int] = {}
@@ -88,16 +95,8 @@ class MissCounter:
             f"{n} frames {why} ({total} on this sensor since the service started)",
             self._instance,
         )
-        try:
-            # DROP: a miss listener runs on Zenoh's own thread (group.on_zenoh): never block.
-            put(
-                self._session,
-                self._keys.errors(vehicle, name),
-                encode(err),
-                zenoh.CongestionControl.DROP,
-            )
-        except zenoh.ZError as e:
-            log.warning("miss_announce_failed", vehicle=vehicle, sensor=name, error=str(e))
+        # Never waits: past the announcer's backlog the notice is counted and logged there.
+        self._announcer.announce(self._keys.errors(vehicle, name), encode(err), sensor)
 
 
 __all__ = ["MissCounter", "source_of"]

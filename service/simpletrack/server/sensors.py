@@ -13,6 +13,7 @@ from enum import Enum
 
 from simpletrack.core.state import TrackTable
 from simpletrack.core.tracker import Tracker
+from simpletrack.server.checkpoint_rule import CheckpointMark
 from simpletrack.wire.decoding import Rejection
 from simpletrack.wire.messages import DetectionFrame
 from simpletrack.wire.models import SensorSnapshot
@@ -82,7 +83,7 @@ class SensorState:
     last_seen: float = field(default_factory=time.monotonic)
     dirty: bool = True
     # (standby, frames) of the last checkpoint sent: unchanged, nothing to send
-    checkpoint_mark: tuple[str, int] | None = None
+    checkpoint_mark: CheckpointMark | None = None
     _undo: _Undo | None = None
     epoch: int = 0  # custody epoch (docs/SCALE.md, "Fencing"): on every tracks message
     resets: int = 0  # on this instance (the status's, not kept in snapshots)

@@ -373,7 +373,15 @@ class ServiceSettings(BaseSettings):
     )
     checkpoint_interval_s: Seconds = Field(
         default=1.0,
-        description="how often an owner sends each changed sensor's state to its standby member",
+        description="how often an owner sends each changed sensor's state to its standby member (checkpoint_frames > 1: each sensor due one)",
+    )
+    checkpoint_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
+        default=1,
+        description="more than 1: a sensor's state goes to its standby only once it took this many frames since its last checkpoint, or took fewer and that checkpoint is checkpoint_max_age_s old; fewer checkpoints for sensors under 10 Hz, slower failovers of them (docs/SCALE.md)",
+    )
+    checkpoint_max_age_s: Seconds = Field(
+        default=10.0,
+        description="with checkpoint_frames > 1: a changed sensor's checkpoint is never older than this",
     )
     state_format: Annotated[int, Field(ge=min(STATE_FORMATS), le=max(STATE_FORMATS))] = Field(
         default=STATE_FORMAT,

@@ -4,7 +4,8 @@ its inbound traffic is its share of the fleet instead of all of it.
 
 A ``DetectionPublisher`` (an advanced publisher with publisher detection) holds the token
 ``<detections key>/@adv/pub/<zid>/<eid>/...`` while it lives; a liveliness subscriber on
-``<prefix>/*/*/detections/@adv/pub/**`` therefore lists the sensors being published. A
+``<prefix>/*/*/detections/@adv/pub/**`` therefore lists the sensors being published
+(server/sensor_tokens.py, declared before the start's settle time). A
 publisher without that token (a plain ``put``) is found by the group's scout
 (server/scout.py), whose token ``<prefix>/@simpletrack/<scout>/plain/<v>/<s>`` stands for it:
 such a sensor gets a plain subscriber whose first frames wait until the scout's copies of the
@@ -21,6 +22,16 @@ copies kept of its own stream are the vehicle's first frames when the gate opens
 The tracks of the same streams are heard per stream, by owner and standby (a standby learns
 how far planners have them; an owner hears whether another member took its stream over),
 from other sessions only: a member's own tracks teach it nothing.
+
+A publisher's heartbeats (``<detections key>/@adv/pub/<zid>/<eid>/...``, its token's key) reach
+a session through the advanced subscriber's wildcard ``<detections key>/@adv/pub/**``, which
+Zenoh delivers by testing the heartbeat's key against every subscriber of the session: a
+member holding S sensors paid O(S) per heartbeat, O(S²) a second (docs/BENCHMARKS.md). Each
+subscribed sensor's token keys are therefore declared as key expressions on the session: a
+heartbeat then arrives by that declared id and goes to the subscribers matched once, at the
+declaration. The same holds for the checkpoints an owner sends this member as a standby (heard
+by the wildcard ``<prefix>/@simpletrack/<me>/checkpoint/*/...``): each held stream's own
+checkpoint key is declared too.
 
 Declarations happen on this module's own thread, never in a Zenoh callback.
 """
@@ -41,18 +52,24 @@ from simpletrack.server.group import Membership, Role, on_zenoh, undeclare
 from simpletrack.server.intake import Intake
 from simpletrack.server.logs import get_logger
 from simpletrack.server.scout import GATHER_S, Scout, fetch_plain
-from simpletrack.wire.keys import DETECTIONS, SERVICE_CHUNK, VEHICLE_STREAM, Keys
+from simpletrack.server.sensor_tokens import SensorTokens
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 
 log = get_logger("group")
-ADV_TOKENS = "@adv/pub/**"
-# A sensor stays subscribed this long after its last token went: a router's outage takes
-# every token with it, and the subscriber kept recovers the outage's frames from the
-# vehicle's cache as a wide one does; a plain sensor's scout may have left (the next one
-# announces it again at its next frame).
-GRACE_S = 30.0
 # A plain sensor's gate opens once the scout's copies meet the frames heard here (no frame
 # between them), or after QUIET_S without a frame here; at the latest after VERIFY_S.
 QUIET_S, VERIFY_S, RETRY_S = 0.05, 2.0, 0.01
+
+
+class DeclaredKey:
+    """A key expression declared on a session, undeclared like the other entities."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self._session = session
+        self.key_expr = session.declare_keyexpr(key)
+
+    def undeclare(self) -> None:
+        self._session.undeclare(self.key_expr)
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,43 +174,13 @@ def hears_frames(role: Role, *, cached: bool, fuses_later: bool, standby_frames:
     return role is Role.OWNER or standby_frames or not cached or fuses_later
 
 
-class NewSensors:
-    """The sensors first published while this member runs (their first token came after the
-    start settled) and not yet subscribed here. Such a sensor's subscription takes its
-    vehicle's whole cache, however late it comes: nobody can have heard those frames, and a
-    subscription delayed past any bound (a loaded member) must not lose them silently. A
-    sensor found another member's, or stood by for without hearing its frames, leaves the
-    set: a takeover of it later is the custody machine's (the checkpoint, the standby's
-    frames, the cache for a gap), as for any other. No clock, no lock (its owner's)."""
-
-    def __init__(self) -> None:
-        self._known: set[str] = set()  # sensors ever published with a token while running
-        self._new: set[str] = set()
-
-    def token(self, sensor: str, *, running: bool, back: bool) -> None:
-        """A publisher's token of ``sensor`` appeared; ``running``: after the start settled;
-        ``back``: the sensor had lost every token (a router's outage), it is not new."""
-        if running and not back and sensor not in self._known:
-            self._new.add(sensor)
-        self._known.add(sensor)
-
-    def others(self, sensors: set[str]) -> None:
-        """``sensors`` (with tokens) are not this member's to hear."""
-        self._new -= sensors
-
-    def take(self, sensor: str) -> bool:
-        """Subscribing to ``sensor`` now: does the subscription take the whole cache?"""
-        fresh = sensor in self._new
-        self._new.discard(sensor)
-        return fresh
-
-
 class Subscriptions:
     def __init__(
         self,
         session: zenoh.Session,
         keys: Keys,
         membership: Membership,
+        tokens: SensorTokens,
         handler: Callable[[], Any],
         on_miss: Callable[[ext.Miss], None],
         history_frames: int,
@@ -214,28 +201,23 @@ class Subscriptions:
         self._handler, self._on_miss, self._history = handler, on_miss, history_frames
         self._stream_of = stream_of  # a fused sensor's role is its vehicle's
         self._tracks, self._intake = tracks, intake  # intake: plain sensors heard (a scout)
-        self._tokens: dict[str, set[str]] = {}  # vehicle/sensor -> its publishers' tokens
-        self._plain: dict[str, set[str]] = {}  # vehicle/sensor -> scouts' plain tokens
-        self._adv_lost: dict[str, float] = {}  # sensor -> when its vehicle's last token went
-        self._plain_lost: dict[str, float] = {}  # sensor -> when its scouts' last token went
+        self.tokens = tokens  # started by the caller, before the start's settle time
+        tokens.on_change = self.changed
         self._subs: dict[str, tuple[Any, ...]] = {}  # vehicle/sensor -> its entities
         self._plain_subs: set[str] = set()  # the sensors of _subs subscribed as plain
         self._track_subs: dict[str, Any] = {}  # stream -> its tracks subscriber
-        self._lock = threading.Lock()
+        # Keys heard through a wildcard, declared (heartbeats, checkpoints): key -> entity.
+        self._exact: dict[str, DeclaredKey] = {}
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._idle = threading.Event()
         self._thread = threading.Thread(target=self._run, name="subscriptions", daemon=True)
-        self._token_sub: Any = None
-        self._plain_sub: Any = None
-        self._started: float | None = None  # settled at start: tokens seen later are new
-        self._new = NewSensors()  # under _lock
         self.scout = (
             Scout(
                 session,
                 keys,
                 membership.me,
-                self._tokened,
+                tokens.tokened,
                 self._direct,
                 idle_s,
                 self.changed,
@@ -249,20 +231,13 @@ class Subscriptions:
     def subscribed(self) -> int:
         return len(self._subs)
 
-    def start(self) -> None:
-        self._token_sub = self.session.liveliness().declare_subscriber(
-            f"{self.keys.prefix}/*/*/{DETECTIONS}/{ADV_TOKENS}", self._on_token, history=True
-        )
-        if self.scout is not None:
-            self._plain_sub = self.session.liveliness().declare_subscriber(
-                self.keys.plain(), self._on_plain_token, history=True
-            )
-        self._thread.start()
+    @property
+    def exact_keys(self) -> frozenset[str]:
+        """The keys heard through a wildcard that this member declared on its session."""
+        return frozenset(self._exact)
 
-    def _tokened(self, sensor: str) -> bool:
-        # Dict reads, atomic: no lock on the scout's path. A sensor whose vehicle's token
-        # went a moment ago (a router's outage) is still its own subscribers'.
-        return sensor in self._tokens or sensor in self._adv_lost
+    def start(self) -> None:
+        self._thread.start()
 
     def _direct(self, sensor: str, sample: zenoh.Sample) -> bool:
         """The scout's frame of a plain sensor: taken in when this member has a role for it
@@ -284,63 +259,8 @@ class Subscriptions:
         """Wait until the subscriptions match the roles (at start, before the token)."""
         self.changed()
         done = self._idle.wait(timeout)
-        self._started = time.monotonic()
+        self.tokens.running()
         return done
-
-    def _on_token(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        names = self.keys.sensor_of(key.split(f"/{DETECTIONS}/", 1)[0] + f"/{DETECTIONS}")
-        if names is None:
-            return
-        sensor = f"{names[0]}/{names[1]}"
-        with self._lock:
-            tokens = self._tokens.setdefault(sensor, set())
-            if sample.kind == zenoh.SampleKind.PUT:
-                back = self._adv_lost.pop(sensor, None) is not None
-                self._new.token(sensor, running=self._started is not None, back=back)
-                tokens.add(key)
-            else:
-                tokens.discard(key)
-                if not tokens:
-                    del self._tokens[sensor]
-                    self._adv_lost[sensor] = time.monotonic()
-        self.changed()
-
-    def _on_plain_token(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        names = self.keys.service_sensor_of(key)
-        if names is None:
-            return
-        sensor = f"{names[0]}/{names[1]}"
-        with self._lock:
-            tokens = self._plain.setdefault(sensor, set())
-            if sample.kind == zenoh.SampleKind.PUT:
-                tokens.add(key)
-                self._plain_lost.pop(sensor, None)
-            else:
-                tokens.discard(key)
-                if not tokens:
-                    del self._plain[sensor]
-                    self._plain_lost[sensor] = time.monotonic()
-        self.changed()
-
-    def _scouts_of(self, sensor: str) -> list[str]:
-        """The members whose plain token names ``sensor`` (the scouts that kept its frames)."""
-        with self._lock:
-            keys = list(self._plain.get(sensor, ()))
-        head = f"{self.keys.prefix}/{SERVICE_CHUNK}/"
-        return sorted({k[len(head) :].split("/", 1)[0] for k in keys})
-
-    def _published(self) -> tuple[set[str], set[str]]:
-        """(sensors with a vehicle's token, sensors found by a scout): those published."""
-        now = time.monotonic()
-        with self._lock:
-            for lost in (self._adv_lost, self._plain_lost):
-                for sensor in [s for s, t in lost.items() if now - t > GRACE_S]:
-                    del lost[sensor]
-            tokened = set(self._tokens) | set(self._adv_lost)
-            plain = (set(self._plain) | set(self._plain_lost)) - tokened
-        return tokened, plain
 
     def _wanted(self, published: set[str]) -> set[str]:
         """Of the sensors published, those this member owns or stands by for."""
@@ -382,24 +302,24 @@ class Subscriptions:
             if scouting:
                 self.scout.set_active(True)
                 due = self.scout.reconcile()
-        tokened, plain = self._published()
+        tokened, plain = self.tokens.published()
         if not scouting and self._wanted(plain) - set(self._subs):
             # New plain sensors: their vehicle's others may be on their way (one batch).
             time.sleep(GATHER_S)
-            tokened, plain = self._published()
+            tokened, plain = self.tokens.published()
         wanted = self._wanted(tokened | plain)
         heard = {s for s in wanted if self._hears_frames(s, tokened)}
-        with self._lock:
-            # Not heard here, a sensor is not new to this member any more: once it owns it
-            # (a failover, a hand-off), its subscription takes ``history_frames`` and the
-            # takeover fetches just the gap after its state, in one piece, beside the queue
-            # (a whole cache per sensor through the queues at once shed the survivors' own
-            # frames: 500 sensors, 228 moved, 23-55 refused).
-            self._new.others(tokened - heard)
+        # Not heard here, a sensor is not new to this member any more: once it owns it
+        # (a failover, a hand-off), its subscription takes ``history_frames`` and the
+        # takeover fetches just the gap after its state, in one piece, beside the queue
+        # (a whole cache per sensor through the queues at once shed the survivors' own
+        # frames: 500 sensors, 228 moved, 23-55 refused).
+        self.tokens.not_new(tokened - heard)
         # A plain sensor whose vehicle now holds a token is subscribed again, advanced.
         changed = {s for s in self._plain_subs if s in tokened}
         for sensor in [s for s in self._subs if s not in heard or s in changed]:
             undeclare(*self._subs.pop(sensor))
+            self.tokens.unsubscribed(sensor)
             self._plain_subs.discard(sensor)
         plain_batch: list[tuple[str, _Held]] = []
         for sensor in sorted(heard - set(self._subs)):
@@ -415,23 +335,44 @@ class Subscriptions:
             taken = self.scout.set_active(False)  # after its sensors' own subscriptions
         if plain_batch:
             self._release_plain(plain_batch, taken)
-        self._reconcile_tracks({self._stream_of(*s.split("/")) for s in wanted})
+        streams = {self._stream_of(*s.split("/")) for s in wanted}
+        self._reconcile_tracks(streams)
+        self._reconcile_exact(streams)
         return due
+
+    def _reconcile_exact(self, streams: set[str]) -> None:
+        me = self.membership.me
+        keys = self.tokens.heartbeat_keys(self._subs, self._plain_subs)
+        keys |= {self.keys.checkpoint(me, *stream.split("/")) for stream in streams}
+        for key in [k for k in self._exact if k not in keys]:
+            undeclare(self._exact.pop(key))
+        for key in sorted(keys - set(self._exact)):
+            self._exact[key] = DeclaredKey(self.session, key)
 
     def _advanced(self, sensor: str) -> tuple[Any, ...]:
         """A sensor its vehicle started publishing after this member started: nobody heard
         its frames before this subscription (a vehicle may start on the first subscriber it
         matches, the scout's), so its whole cache comes first; any other: its last
-        ``history_frames`` (the custody machine skips what a state already holds)."""
+        ``history_frames`` (the custody machine skips what a state already holds). The
+        whole history is not enough alone: zenoh-ext 1.10 can deliver a live frame ahead of
+        a history still pending and then drop that history as old, unannounced (1 replay in
+        ~40); the new sensor's takeover asks the cache for all it keeps too
+        (``SensorTokens.claim_fresh``).
+
+        Only a new sensor's subscription asks a publisher that appears later
+        (``detect_late_publishers``: a router's outage over, its token back) for its cache,
+        and then for all of it. zenoh-ext asks with the history's bound: cut to
+        ``history_frames``, the outage's gap behind the frame answered was counted as
+        missed. Without that question a gap is asked for exactly, by its first frame after
+        the gap or by the publisher's next heartbeat."""
         vehicle, name = sensor.split("/")
-        with self._lock:
-            fresh = self._new.take(sensor)
+        fresh = self.tokens.take_new(sensor)
         sub = ext.declare_advanced_subscriber(
             self.session,
             self.keys.detections(vehicle, name),
             self._handler(),
             history=ext.HistoryConfig(
-                detect_late_publishers=True, max_samples=None if fresh else self._history
+                detect_late_publishers=fresh, max_samples=None if fresh else self._history
             ),
             recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None),
         )
@@ -462,7 +403,9 @@ class Subscriptions:
         while pending:
             now = time.monotonic()
             for sensor, held in list(pending.items()):
-                earlier = fetch_plain(self.session, self.keys, self._scouts_of(sensor), sensor)
+                earlier = fetch_plain(
+                    self.session, self.keys, self.tokens.scouts_of(sensor), sensor
+                )
                 if met(held, earlier, now - start):
                     fetched[sensor] = earlier
                     del pending[sensor]
@@ -504,10 +447,7 @@ class Subscriptions:
         self._wake.set()
         if self._thread.is_alive():
             self._thread.join(5)
-        for sub in (self._token_sub, self._plain_sub):
-            if sub is not None:
-                undeclare(sub)
-        self._token_sub = self._plain_sub = None
+        self.tokens.close()
         if self.scout is not None:
             self.scout.close()
         for entities in self._subs.values():
@@ -515,6 +455,13 @@ class Subscriptions:
         self._subs.clear()
         undeclare(*self._track_subs.values())
         self._track_subs.clear()
+        undeclare(*self._exact.values())
+        self._exact.clear()
 
 
-__all__ = ["NewSensors", "Subscriptions", "TracksHandlers", "hears_frames"]
+__all__ = [
+    "DeclaredKey",
+    "Subscriptions",
+    "TracksHandlers",
+    "hears_frames",
+]

@@ -24,6 +24,7 @@ from simpletrack.core.config import TrackerConfig
 from simpletrack.core.fusion_config import FusionConfig
 from simpletrack.core.reorder import ReorderBuffer
 from simpletrack.core.vehicle import VehicleTracker
+from simpletrack.server.checkpoint_rule import CheckpointMark
 from simpletrack.server.intake import Inbound
 from simpletrack.server.sensors import RATE_FRAMES, RATE_WINDOW_S, Arrival, SensorState
 from simpletrack.wire.codec import DecodedDetections, DecodeLimits, Rejection, decode_message
@@ -80,7 +81,7 @@ class VehicleState:
     active_tracks: int = 0
     last_seen: float = field(default_factory=time.monotonic)
     dirty: bool = True
-    checkpoint_mark: tuple[str, int] | None = None
+    checkpoint_mark: CheckpointMark | None = None
     resets: int = 0
     implausible: int = 0
     tracked_at: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_FRAMES))
