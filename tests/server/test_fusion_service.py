@@ -228,25 +228,30 @@ def test_a_camera_with_its_clock_or_mounting_off_is_flagged_and_changes_no_track
     tmp_path: Path, fault: str, condition: SensorCondition
 ) -> None:
     config = write_config(tmp_path, verify=True)
-    start = time.time_ns() + 200_000_000  # sent in real time: stamps are the clocks'
-    wire = frames(3.0, start)
-    if fault == "clock":  # the camera's clock 5 s ahead of every other clock
-        wire = [f if f.sensor == "lidar" else _moved(f, stamp=5_000_000_000) for f in wire]
-    else:  # mounted 20 m off from what its extrinsic says
-        m = np.eye(4)
-        m[0, 3] = 20.0
-        wire = [f if f.sensor == "lidar" else _moved(f, extrinsic=f.extrinsic @ m) for f in wire]
-    alone = expected(wire, fusion_of(config), skip="camera")
     svc = start_service(tmp_path, "--config", str(config))
     try:
         with client(svc.endpoint) as c:
             planner = Planner(c.session)
+            # Stamped from now, once the service is up, and sent in real time: the lidar's
+            # frames after the camera's first window carry the camera's condition. (Stamped
+            # before the service started, every frame was due at once: in a burst, the
+            # lidar's could all go before the camera's first left its window.)
+            wire = frames(3.0, time.time_ns() + 200_000_000)
+            if fault == "clock":  # the camera's clock 5 s ahead of every other clock
+                wire = [f if f.sensor == "lidar" else _moved(f, stamp=5_000_000_000) for f in wire]
+            else:  # mounted 20 m off from what its extrinsic says
+                m = np.eye(4)
+                m[0, 3] = 20.0
+                wire = [
+                    f if f.sensor == "lidar" else _moved(f, extrinsic=f.extrinsic @ m) for f in wire
+                ]
             for f in wire:  # each at its lidar-clock time: the camera's stamps run 5 s ahead
                 due = f.stamp_ns - (
                     5_000_000_000 if fault == "clock" and f.sensor == "camera" else 0
                 )
                 time.sleep(max(0.0, (due - time.time_ns()) * 1e-9))
                 c.put(VEHICLE, f.sensor, f.payload())
+            alone = expected(wire, fusion_of(config), skip="camera")
             wait_for(lambda: planner.n() >= len(alone), 20, "the lidar's fused messages")
             time.sleep(0.4)
             status = _status(c)
@@ -323,12 +328,12 @@ def test_a_killed_camera_costs_the_window_then_nothing_and_is_reported_silent(
 ) -> None:
     window = 0.3
     config = write_config(tmp_path, window_s=window, silent_after_s=1.0)
-    start = time.time_ns() + 200_000_000
-    wire = frames(5.0, start)
     svc = start_service(tmp_path, "--config", str(config))
     try:
         with client(svc.endpoint) as c:
             planner = Planner(c.session)
+            start = time.time_ns() + 200_000_000  # from now: sent in real time
+            wire = frames(5.0, start)
             death = start + 2_000_000_000  # the camera sends nothing from 2 s on
             for f in wire:
                 if f.sensor == "camera" and f.stamp_ns >= death:
