@@ -44,6 +44,13 @@ Guarantees, one table test (or a group) each:
      cache for all it keeps first: the frames a new subscription's history dropped are
      tracked, in stamp order, each once; a fused vehicle's other sensors' cached frames
      (published before this member started) are not tracked again.
+ G15 a held stream whose restarted publisher's first frame heard is not its first (a
+     vehicle rebooted while its router was away) asks the vehicle's cache for all it keeps,
+     its frames waiting meanwhile: the frames before it are tracked first, in stamp order,
+     each once; those the cache no longer keeps (by the cached samples' Zenoh sequence
+     numbers, from the publisher's first, 0) are announced as missed on the restarted
+     sensor; each publisher session is asked once, and only of a stream held (a fused
+     vehicle still catching up on a silent sensor too; a takeover's frames are its own).
 """
 
 from __future__ import annotations
@@ -67,6 +74,7 @@ from simpletrack.server.custody_machine import (
     Release,
     Resend,
     Resolve,
+    RestartCoverage,
     Role,
     SensorCoverage,
     Skip,
@@ -92,7 +100,7 @@ def f(seq: int, key: str = KEY) -> Frame:
 
 
 def peek(fr: Frame) -> tuple[str, int | None, int | None]:
-    return fr
+    return fr[:3]  # type: ignore[return-value]  # a restart's frames carry their sn too
 
 
 def machine(**limits: float) -> CustodyMachine[Frame]:
@@ -726,3 +734,110 @@ def test_g14_a_fused_vehicles_fresh_sensor_replays_its_cache_not_the_others() ->
     acts = m.cached(v, [f(0, CAM), f(1, CAM), f(0, LIDAR), f(1, LIDAR), f(2, LIDAR)])
     done = [(a.frame[0].split("/")[2], a.frame[1]) for a in acts if isinstance(a, Track)]
     assert done == [("lidar", 0), ("lidar", 1), ("lidar", 2)]
+
+
+# ---------------------------------------------------------------------- G15
+def r(seq: int, key: str = KEY, sn: int | None = None) -> Frame:
+    """A frame of the restarted publisher's session: its seqs start again, its stamps go on
+    after the old session's last (300); ``sn``: its Zenoh sequence number, as the vehicle's
+    cache answers it (the same as its seq unless given; None: heard live)."""
+    return (key, seq, 500 + seq * 100, seq if sn is None else sn)  # type: ignore[return-value]
+
+
+def live(fr: Frame) -> Frame:
+    return fr[:3]  # type: ignore[return-value]
+
+
+def sn(fr: Frame) -> int | None:
+    return fr[3] if len(fr) > 3 else None  # type: ignore[misc]
+
+
+def restarted(first: Frame) -> CustodyMachine[Frame]:
+    """S held with frames 1..3 (stamps up to 300); ``first`` is the restarted session's
+    first frame heard: the cache is asked."""
+    m = machine()
+    held(m, 3)
+    cov = RestartCoverage(SensorCoverage(3, 300, peek), KEY, sn, peek)
+    assert m.refill(S, first, cov, 7) == [FetchCache(S)]
+    assert m.phase(S) is Phase.FILLING
+    return m
+
+
+def test_g15_a_restarted_publishers_unheard_frames_are_tracked_first() -> None:
+    m = restarted(live(r(5)))
+    assert m.frame(S, live(r(6)), view(), 0.0) == []  # waits behind the cache
+    acts = m.cached(S, [r(q) for q in (6, 2, 0, 5, 1, 4, 3)])  # any order, 5 and 6 too
+    assert tracked(acts) == [(q, True) for q in range(7)]
+    assert not any(isinstance(a, AnnounceMissed) for a in acts)
+    assert tracked(m.frame(S, live(r(7)), view(), 0.0)) == [(7, True)]
+
+
+@pytest.mark.parametrize(
+    ("first", "cached", "missed"),
+    [
+        (5, [r(3), r(4), r(5)], 3),  # samples 0-2 gone
+        (5, [r(2), r(4), r(5)], 3),  # and 3, between two the cache kept
+        (8, [r(6, sn=2), r(7, sn=3), r(8, sn=4)], 2),  # resumed at 4: its samples 0-1 gone
+        (5003, [r(q, sn=q - 5000) for q in range(5000, 5004)], 0),  # a counter of its own
+        (5, [], 0),  # no cache (a plain put): nothing to tell it by
+    ],
+)
+def test_g15_what_the_cache_no_longer_keeps_is_announced_on_the_restarted_sensor(
+    first: int, cached: list[Frame], missed: int
+) -> None:
+    m = restarted(live(r(first)))
+    acts = m.cached(S, cached)
+    announced = [a for a in acts if isinstance(a, AnnounceMissed)]
+    assert announced == ([AnnounceMissed(S, missed, "lidar")] if missed else [])
+    assert tracked(acts) == [(q, True) for q in sorted({*(c[1] for c in cached), first})]
+    assert not any(isinstance(a, RaiseIds) for a in acts)  # the state's own ids go on
+
+
+def test_g15_each_session_is_asked_once_and_only_of_a_stream_held() -> None:
+    m = restarted(live(r(5)))
+    cov = RestartCoverage(SensorCoverage(3, 300, peek), KEY, sn, peek)
+    assert m.refill(S, live(r(6)), cov, 7) is None  # filling already
+    m.cached(S, [r(4), r(5)])  # 0-3 gone: the session's frames go on from 4
+    assert m.refill(S, live(r(9)), cov, 8) is None  # catching up: a copy of 5 may still come
+    assert tracked(m.frame(S, live(r(6)), view(), 0.0)) == [(6, True)]  # past it: held
+    assert m.refill(S, live(r(7)), cov, 7) is None  # this session was asked for: as is
+    assert m.refill(S, live(r(9)), cov, 8) == [FetchCache(S)]  # another restart: asked again
+    fresh = machine()
+    assert fresh.refill(S, live(r(5)), cov, 7) is None  # not held: the takeover's to answer
+    assert fresh.frame(S, live(r(5)), view(), 0.0) == [Ask(S)]
+    assert fresh.refill(S, live(r(6)), cov, 7) is None  # asking
+
+
+def test_g15_a_fused_vehicles_restarted_sensor_is_filled_not_its_others() -> None:
+    m = machine()
+    m.fused_sensors = ("lidar", "cam")
+    v = "car/@vehicle"
+    assert m.frame(v, f(1, LIDAR), view(), 0.0) == [Ask(v)]
+    m.answered(v, [], nobody)
+    m.adopted(v, None)
+    for fr in (f(1, CAM), f(2, LIDAR), f(2, CAM), f(3, CAM)):
+        m.frame(v, fr, view(), 0.0)
+    assert m.phase(v) is Phase.HELD
+    cov = RestartCoverage(UpTo(300), LIDAR, sn, peek)
+    assert m.refill(v, live(r(4, LIDAR)), cov, 7) == [FetchCache(v)]
+    assert m.frame(v, live(r(4, CAM)), view(), 0.0) == []  # the camera's frames wait too
+    acts = m.cached(v, [f(2, CAM), f(3, CAM), r(2, LIDAR), r(3, LIDAR), r(4, LIDAR)])
+    done = [(a.frame[0].split("/")[2], a.frame[1]) for a in acts if isinstance(a, Track)]
+    assert done == [("lidar", 2), ("lidar", 3), ("lidar", 4), ("cam", 4)]
+    assert [a for a in acts if isinstance(a, AnnounceMissed)] == [
+        AnnounceMissed(v, 2, "lidar")  # samples 0 and 1 gone
+    ]
+
+
+def test_g15_a_fused_vehicle_still_catching_up_on_a_silent_sensor_is_refilled_too() -> None:
+    # Taken over from a state, it catches up until each sensor is past it: the camera never
+    # is once it went silent, and the lidar's restart must not wait for it.
+    m, v, lidar, _ = filling_vehicle(f(5, LIDAR))
+    m.cached(v, [f(4, lidar)])
+    assert m.frame(v, f(6, lidar), view(), 0.0) == [Track(v, f(6, lidar))]
+    assert m.phase(v) is Phase.CATCHING_UP  # the camera: silent
+    after = [(LIDAR, q, 700 + q * 100, q) for q in range(10)]  # stamped after the state's 600
+    cov = RestartCoverage(UpTo(600), LIDAR, sn, peek)
+    assert m.refill(v, live(after[9]), cov, 7) == [FetchCache(v)]  # type: ignore[arg-type]
+    acts = m.cached(v, after)  # type: ignore[arg-type]
+    assert [a.frame[1] for a in acts if isinstance(a, Track)] == list(range(10))

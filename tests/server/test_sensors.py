@@ -19,6 +19,7 @@ from simpletrack.server.sensors import (
     SensorState,
     check_order,
     lead_ns,
+    unheard_start,
 )
 from simpletrack.wire.reasons import ErrorReason
 
@@ -190,6 +191,26 @@ UNDO_TABLE = [
 @pytest.mark.parametrize(("before", "last", "frame", "expected"), UNDO_TABLE)
 def test_undo_rule(before: Arrival, last: Arrival, frame: Arrival, expected: Order) -> None:
     assert check_order(last, frame, RULES, before).order is expected
+
+
+@pytest.mark.parametrize(
+    ("last", "frame", "unheard"),
+    [
+        (at(40, 4_000, session=1), at(12, 5_000, session=2), True),  # 0-11 reached no one
+        (at(40, 4_000, session=1), at(45, 5_000, session=2), True),  # resumed, 41-44 unheard
+        (at(40, 4_000, session=1), at(0, 5_000, session=2), False),  # a new numbering's first
+        (at(40, 4_000, session=1), at(41, 5_000, session=2), False),  # resumed, nothing lost
+        (at(40, 4_000, session=1), at(12, 5_000, session=1), False),  # the same session
+        (at(40, 4_000, session=1), at(12, 3_000, session=2), False),  # earlier: order rules
+        (at(40, 4_000), at(12, 5_000, session=2), False),  # no session to tell them by
+        (at(40, 4_000, session=1), at(12, 5_000), False),
+        (None, at(12, 5_000, session=2), False),  # the sensor's first frame
+    ],
+)
+def test_a_restarted_publishers_first_frame_heard_tells_whether_earlier_ones_went_unheard(
+    last: Arrival | None, frame: Arrival, unheard: bool
+) -> None:
+    assert unheard_start(last, frame) is unheard
 
 
 def test_lead_is_the_stamp_step_minus_the_wall_step() -> None:

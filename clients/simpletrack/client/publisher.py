@@ -19,8 +19,10 @@ once it can reach the vehicle again (a router outage). A frame published while n
 reachable is reported to ``on_undelivered`` (on the caller's thread, from ``publish()``) as
 held (still in the cache) and, if the outage outlasts the cache, again as lost; the counts
 are ``held`` and ``lost``, and ``delivering`` says whether a service is reachable now. A
-service recovers held frames only if it had heard from this publisher before the outage; one
-that first hears of it takes only its latest frame (the service's ``history_frames``).
+service recovers held frames when it had heard from this publisher before the outage, or
+tracks the sensor already (a vehicle rebooted while its router was away: the first frame it
+hears asks the cache for those before); one that first hears of the sensor at its own start
+takes only its latest frame (the service's ``history_frames``).
 
 Errors the service sends back on ``<prefix>/<vehicle>/<sensor>/errors`` reach ``on_error`` (called on a Zenoh thread: keep it short) and the ``errors()`` iterator.
 

@@ -245,12 +245,14 @@ class Custody:
         def on_reply(reply: zenoh.Reply) -> None:
             if reply.ok is not None:
                 sample = reply.ok
+                info = sample.source_info
                 got.append(
                     Inbound(
                         str(sample.key_expr),
                         sample.payload.to_bytes(),
                         time.time_ns(),
                         time.perf_counter(),
+                        source_sn=None if info is None else info.source_sn,
                     )
                 )
 

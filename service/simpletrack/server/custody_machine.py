@@ -34,6 +34,7 @@ RELEASE_GUARD_S = 2.0
 RELEASED_KEPT_S = 60.0
 MAX_STANDBY_STREAMS = 100_000
 _RESTARTED_PUBLISHER = 100_000  # a seq jump this large is a new numbering, not a gap
+_SESSIONS_KEPT = 8  # restarted publisher sessions remembered per stream (each asked once)
 # Frames a sensor may publish between the newest one a takeover has and the cache's answer
 # (they come live as well); a cache that answers as many frames as asked, holes still left,
 # is asked for all it keeps.
@@ -78,6 +79,9 @@ class Source(Enum):
     RESTORE = "restore"  # this member's state directory (or its own fenced state)
     LOST = "lost"  # another member published it and nobody has its state
     NEW = "new"
+    # Held here all along: a restarted publisher's first frames reached no member (a vehicle
+    # rebooted while its router was away), so its cache is asked for them.
+    RESTARTED = "restarted"
 
 
 # ---------------------------------------------------------------------- actions
@@ -158,6 +162,7 @@ class Resend:
 class AnnounceMissed:
     stream: str
     frames: int
+    restarted: str | None = None  # a restarted publisher's sensor (``refill``): its frames
 
 
 @dataclass(frozen=True, slots=True)
@@ -241,6 +246,33 @@ class SensorCoverage(Generic[F]):
 
 
 @dataclass(slots=True)
+class RestartCoverage(Generic[F]):
+    """A held stream's state when a restarted publisher's first frame heard here was not its
+    first (``refill``): the state covers what it covers; the holes are the restarted
+    sensor's (frames on ``key``) samples its publisher sent before the newest the vehicle's
+    cache answered and that the cache no longer keeps. ``sn``: a cached frame's Zenoh
+    sequence number (its publisher's first sample is 0, whatever seqs the frames carry: a
+    new numbering, a resumed one, a counter of its own); None for a frame heard live."""
+
+    inner: Coverage[F]
+    key: str
+    sn: Callable[[F], int | None]
+    peek: Peek[F]
+
+    def covers(self, frame: F) -> bool:
+        return self.inner.covers(frame)
+
+    def holes(self, frames: Iterable[F]) -> int:
+        sns = {
+            n
+            for f in frames
+            if self.peek(f)[0] == self.key and not self.inner.covers(f)
+            and (n := self.sn(f)) is not None
+        }  # fmt: skip
+        return 0 if not sns else max(sns) + 1 - len(sns)
+
+
+@dataclass(slots=True)
 class Takeover(Generic[F]):
     """How a stream comes to this member."""
 
@@ -302,6 +334,7 @@ class _Stream(Generic[F]):
     # history may bring one of them again after the takeover finished).
     held_by: Coverage[F] | None = None
     catching: dict[str, set[int]] = field(default_factory=dict)
+    refilled: set[int] = field(default_factory=set)  # publisher sessions asked for (refill)
 
 
 @dataclass(slots=True)
@@ -534,6 +567,31 @@ class CustodyMachine(Generic[F]):
             return [FetchCache(stream, self._newest(coverage, [*t.replay, *s.waiting]))]
         return self._complete(stream, s, t)
 
+    def refill(
+        self, stream: str, frame: F, coverage: Coverage[F], session: int
+    ) -> list[Action[F]] | None:
+        """A held stream's live ``frame`` is the first heard of a publisher ``session`` that
+        published before it (its seq says so): the publisher restarted while no member heard
+        it. The frame waits, with those after it, while the vehicle's cache is asked for all
+        it keeps; then the frames the state lacks are tracked in stamp order and a hole
+        left is announced (``cached``, as a takeover's). None: track the frame as it is
+        (the stream is in a takeover here, or this session was asked for already)."""
+        s = self._streams.get(stream)
+        # A fused vehicle catches up until each of its sensors is past its state (a silent
+        # camera: for good); a sensor's stream only until its next frame.
+        simply_held = s is not None and (
+            s.phase is Phase.HELD or (s.phase is Phase.CATCHING_UP and s.held_by is not None)
+        )
+        if s is None or not simply_held or session in s.refilled:
+            return None
+        if len(s.refilled) >= _SESSIONS_KEPT:
+            s.refilled.clear()
+        s.refilled.add(session)
+        s.phase = Phase.FILLING
+        s.takeover = Takeover(stream, Source.RESTARTED, None, None, [], coverage=coverage)
+        s.waiting = deque([frame])
+        return [FetchCache(stream)]
+
     def cached(self, stream: str, frames: Sequence[F], asked: int | None = None) -> list[Action[F]]:
         """The vehicle's cache answered (the frames it still keeps, any order; ``asked``: the
         ``newest`` of the question)."""
@@ -750,7 +808,8 @@ class CustodyMachine(Generic[F]):
         if t.resend is not None:
             acts.append(Resend(stream, t.resend))
         if t.missed:
-            acts.append(AnnounceMissed(stream, t.missed))
+            restarted = _sensor_of(cov.key) if isinstance(cov, RestartCoverage) else None
+            acts.append(AnnounceMissed(stream, t.missed, restarted))
         if t.snapshot is not None and (t.missed or not t.exact_ids):
             floor = 0 if t.heard is None else t.heard.next_id
             acts.append(RaiseIds(stream, floor))
@@ -904,6 +963,6 @@ def _sensor_of(key: str) -> str:
 __all__ = [
     "Action", "AnnounceMissed", "Ask", "Budget", "Coverage", "CustodyMachine", "Drop", "FetchCache",
     "Heard", "Keep", "Limits", "NotOwned", "Phase", "RaiseIds", "Release", "Released",
-    "Resend", "Resolve", "Role", "SensorCoverage", "Skip", "Source", "Stash", "Takeover", "Track", "View",
+    "Resend", "Resolve", "RestartCoverage", "Role", "SensorCoverage", "Skip", "Source", "Stash", "Takeover", "Track", "View",
     "epoch_tag", "next_epoch",
 ]  # fmt: skip

@@ -16,7 +16,14 @@ from simpletrack.core.vehicle import Condition, Outcome, SensorInput
 from simpletrack.server.finite import FloatingPointErrors, non_finite_refusal
 from simpletrack.server.intake import Inbound
 from simpletrack.server.logs import get_logger
-from simpletrack.server.sensors import Arrival, Order, check_order, key_mismatch, lead_ns
+from simpletrack.server.sensors import (
+    Arrival,
+    Order,
+    check_order,
+    key_mismatch,
+    lead_ns,
+    unheard_start,
+)
 from simpletrack.server.vehicles import VehicleState, Waiting
 from simpletrack.wire.codec import Rejection, decode_detection_frame
 from simpletrack.wire.convert import boxes_from_wire, vehicle_tracks_to_wire
@@ -75,7 +82,15 @@ class FusedFrames:
         arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
         if replayed and state.covers(item):
             return  # in the state taken over already
-        verdict = check_order(state.arrivals.get(sensor), arrival, w.rules)
+        last = state.arrivals.get(sensor)
+        if (
+            item is w.live
+            and last is not None
+            and unheard_start(last, arrival)
+            and w.refill(key, item, last, arrival, state)
+        ):
+            return
+        verdict = check_order(last, arrival, w.rules)
         if verdict.reason is not None:
             w._refuse(item, vehicle, sensor, Rejection(
                 verdict.reason, verdict.field, verdict.detail, seq, stamp_ns))  # fmt: skip

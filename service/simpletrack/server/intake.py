@@ -80,6 +80,9 @@ class Inbound:
     received_ns: int  # wall clock (unix ns): goes on the wire
     received_at: float  # time.perf_counter(): measures the queue wait
     kind: Kind = Kind.DETECTIONS
+    # The publisher's Zenoh sequence number, for a frame a vehicle's cache answered (its
+    # first sample is 0): how many it published before; None for a live frame (not read).
+    source_sn: int | None = None
 
 
 def stamp_of(item: Inbound) -> int | None:

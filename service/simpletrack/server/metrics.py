@@ -236,6 +236,12 @@ class Metrics:
             "Frames tracked again at a takeover, after the state it started from",
             registry=r,
         )
+        self.restart_refills = Counter(
+            "simpletrack_restart_refills",
+            "Restarted publishers whose first frame heard was not their first: the vehicle's "
+            "cache was asked for the frames before it",
+            registry=r,
+        )
         self.not_owned = Counter(
             "simpletrack_frames_not_owned",
             "Detection frames heard for sensors of other members, dropped before decoding",

@@ -282,6 +282,21 @@ def check_order(
     return verdict
 
 
+def unheard_start(last: Arrival | None, frame: Arrival) -> bool:
+    """``frame`` is the first heard of a publisher session that published before it: another
+    session than the sensor's last frame's, later, and its seq neither 0 (a new numbering's
+    first) nor the one after the last (a publisher that resumed). Its earlier frames reached
+    nobody here (a vehicle rebooted while its router was away); its cache may keep them."""
+    return (
+        last is not None
+        and frame.session_id is not None
+        and last.session_id is not None
+        and frame.session_id != last.session_id
+        and frame.stamp_ns > last.stamp_ns
+        and frame.seq not in (0, last.seq + 1)
+    )
+
+
 def _against_last(last: Arrival, frame: Arrival, rules: OrderRules) -> Verdict:
     ahead = frame.stamp_ns - last.stamp_ns
     if frame.session_id != last.session_id:  # a restarted publisher: its seq starts afresh

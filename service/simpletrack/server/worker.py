@@ -18,11 +18,12 @@ from simpletrack.core.config import TrackerConfig
 from simpletrack.core.fusion_config import FusionConfig
 from simpletrack.core.tracker import Tracker
 from simpletrack.server.announcer import Announcer
-from simpletrack.server.custody import Custody, Shared
+from simpletrack.server.custody import Custody, Shared, peek
 from simpletrack.server.custody_machine import (
     Action,
     AnnounceMissed,
     Ask,
+    Coverage,
     Drop,
     FetchCache,
     Keep,
@@ -32,6 +33,8 @@ from simpletrack.server.custody_machine import (
     Release,
     Resend,
     Resolve,
+    RestartCoverage,
+    SensorCoverage,
     Skip,
     Stash,
     Track,
@@ -61,6 +64,7 @@ from simpletrack.server.sensors import (
     check_order,
     key_mismatch,
     lead_ns,
+    unheard_start,
 )
 from simpletrack.server.settings import ServiceSettings
 from simpletrack.server.snapshots import SnapshotWriter
@@ -85,6 +89,12 @@ from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
 from simpletrack.wire.reasons import TRACK_EPOCH_SCHEMA_VERSION, ErrorReason
 
 log = get_logger("pool")  # the logger of these lines since before the split (docs/SERVICE.md)
+_MISSED_DETAIL = {
+    "takeover": "{n} frames of the takeover's gap were kept neither by the standby nor by the "
+    "vehicle's cache; ids continue past any born in them",
+    "restart": "{n} frames a restarted publisher sent before any member heard it were no "
+    "longer in the vehicle's cache",
+}
 NAME_RE = re.compile(NAME_PATTERN)
 HOUSEKEEPING_S = 0.5
 _WARNED_CAP = 10_000  # sensors whose logged causes are remembered (see Worker._warned)
@@ -167,6 +177,9 @@ class Worker(threading.Thread):
         # the sensor from its own thread. Never held while waiting on another member.
         self.lock = threading.Lock()
         self._quiet = False  # tracking a frame planners have tracks of: publish nothing
+        # The frame the custody machine answered as it came (not one of a replay, whose
+        # later frames are on their way to the tracker already): only it may start a refill.
+        self.live: Inbound | None = None
         self._superseding: set[str] = set()  # streams whose fence is queued
         # Since when this member reaches the group (the app sets it from the router watch;
         # None: a client without its router). A fenced stream waits for it.
@@ -307,7 +320,11 @@ class Worker(threading.Thread):
         if names is not None:
             key = self.ctx.stream(*names)
             view = self.custody.view(key)
-            self._carry(self.custody.machine.frame(key, item, view, time.monotonic()))
+            self.live = item
+            try:
+                self._carry(self.custody.machine.frame(key, item, view, time.monotonic()))
+            finally:
+                self.live = None
             return
         self._track(item)
 
@@ -347,7 +364,10 @@ class Worker(threading.Thread):
                 self._drop(act.frame, act.reason)
             elif isinstance(act, AnnounceMissed):
                 vehicle, holder = act.stream.split("/")
-                self._announce_missed(vehicle, holder, act.frames)
+                if act.restarted is not None:
+                    self._announce_missed(vehicle, act.restarted, act.frames, at="restart")
+                else:
+                    self._announce_missed(vehicle, holder, act.frames)
             elif isinstance(act, RaiseIds):
                 self.custody.raise_ids(act.stream, act.floor)
             elif isinstance(act, Stash):
@@ -433,23 +453,41 @@ class Worker(threading.Thread):
 
         self.custody.fetch_cache(vehicle, holder, done, newest)
 
-    def _announce_missed(self, vehicle: str, sensor: str, n: int) -> None:
+    def _announce_missed(self, vehicle: str, sensor: str, n: int, at: str = "takeover") -> None:
+        """``at``: a takeover's gap (a fused vehicle's told per sensor) or a restarted
+        publisher's frames before its first heard (``restart``, on its own sensor)."""
         state = self.sensors.get(f"{vehicle}/{sensor}")
-        if isinstance(state, VehicleState):  # told on each sensor's own errors key
+        if at == "takeover" and isinstance(state, VehicleState):  # on each sensor's errors key
             for name, k in state.missed_by_sensor.items():
                 if k:
                     self._announce_missed(vehicle, name, k)
             return
         self.ctx.metrics.count_missed(vehicle, n)
-        log.warning("frames_missed", vehicle=vehicle, sensor=sensor, missed=n, at="takeover")
-        err = missed_notice(
-            vehicle,
-            sensor,
-            f"{n} frames of the takeover's gap were kept neither by the standby nor by the "
-            f"vehicle's cache; ids continue past any born in them",
-            self.ctx.settings.instance,
-        )
-        self.outbox.notice(err)
+        log.warning("frames_missed", vehicle=vehicle, sensor=sensor, missed=n, at=at)
+        detail = _MISSED_DETAIL[at].format(n=n)
+        self.outbox.notice(missed_notice(vehicle, sensor, detail, self.ctx.settings.instance))
+
+    def refill(
+        self, stream: str, item: Inbound, last: Arrival, arrival: Arrival, held: Coverage[Inbound]
+    ) -> bool:
+        """``item`` is a restarted publisher's first frame heard here and not its first
+        (sensors.unheard_start), come live: it waits while the vehicle's cache is asked for
+        the frames before it (the custody machine's ``refill``). False: track it now (the
+        stream is in a takeover, or this publisher session was asked for already).
+        ``held``: what the stream's state covers."""
+        session = arrival.session_id
+        if session is None:
+            return False
+        cov = RestartCoverage(held, item.key, _source_sn, peek)
+        acts = self.custody.machine.refill(stream, item, cov, session)
+        if acts is None:
+            return False
+        vehicle, sensor = item.key.split("/")[-3:-1]
+        self.ctx.metrics.restart_refills.inc()
+        log.info("publisher_restart_unheard", vehicle=vehicle, sensor=sensor, seq=arrival.seq,
+                 last_seq=last.seq, stream=stream)  # fmt: skip
+        self._carry(acts)
+        return True
 
     def _track(self, item: Inbound) -> None:
         ctx, m = self.ctx, self.ctx.metrics
@@ -480,6 +518,20 @@ class Worker(threading.Thread):
         flagged = not self._quiet and self._plausible(vehicle, sensor, seq, decoded, item)
 
         arrival = Arrival(seq, stamp_ns, item.received_ns, frame.session_id)
+        last = None if state is None else state.last
+        if (
+            last is not None
+            and item is self.live
+            and unheard_start(last, arrival)
+            and self.refill(
+                f"{vehicle}/{sensor}",
+                item,
+                last,
+                arrival,
+                SensorCoverage(last.seq, last.stamp_ns, peek),
+            )
+        ):
+            return
         fresh = state is None
         if state is None:
             added = self.sensors.add(vehicle, sensor, seq)
@@ -792,3 +844,7 @@ class Worker(threading.Thread):
                 self.ctx.metrics.count_error(reason, "")
             return
         self._refuse(item, vehicle, sensor, dropped(reason, item.payload), counted)
+
+
+def _source_sn(item: Inbound) -> int | None:
+    return item.source_sn
