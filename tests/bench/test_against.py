@@ -49,6 +49,7 @@ def _check_both_sides_ran(doc: dict[str, Any], rounds: int) -> None:
     assert not ref_tree.exists()  # removed after the runs
     assert not ref_tree.is_relative_to(ROOT)  # and never inside the checkout
     assert doc["order"] == ["this", "ref"] * rounds
+    assert doc["ref_compile_seconds"] >= 0  # REF's kernels compiled once, before its rounds
     head = subprocess.run(
         ["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=True
     ).stdout.strip()

@@ -54,6 +54,10 @@ runpy.run_module("simpletrack.cli.main", run_name="__main__", alter_sys=True)
 """
 
 
+# REF's kernels compiled (or loaded) once before its timed runs.
+WARM = "from simpletrack.core import jit; jit.preload()"
+
+
 class AgainstError(Exception):
     """REF cannot be compared: not a revision, not a git checkout, or its run failed."""
 
@@ -199,6 +203,20 @@ def run_once(
     doc: dict[str, Any] = json.loads(out.read_text())
     doc["imported"] = json.loads(imported.read_text()) if imported.is_file() else None
     return doc
+
+
+def warm_kernels(side: Side, work: Path) -> float:
+    """Compile ``side``'s kernels once, before its timed runs; returns the seconds it took.
+    REF's tree is fresh, numba's cache beside its sources empty: every run of it compiled
+    them again, and a service run waits for them before it is ready (on 2 cores over a
+    minute: past the bench's readiness wait, so `bench service --against` could not run at
+    all). A REF whose core has no ``preload`` compiles in its runs, as before."""
+    env = {**os.environ, "PYTHONPATH": side.pythonpath()}
+    t0 = time.monotonic()
+    with (work / "ref-warm.stderr").open("wb") as err:
+        cmd = [sys.executable, "-P", "-c", WARM]
+        subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err, check=False)
+    return round(time.monotonic() - t0, 1)
 
 
 # ----------------------------------------------------------------------------- figures
@@ -357,6 +375,9 @@ def compare(
         with ref_tree(root, revision, Path(tmp)) as tree:
             other = Side("ref", f"{ref} ({revision[:7]})", tree, revision, False)
             sides = {"this": this, "ref": other}
+            progress(f"{other.label}: compiling its kernels once (a fresh tree) ...")
+            warm_s = warm_kernels(other, work)
+            progress(f"{other.label}: kernels ready in {warm_s:.1f} s")
             for k, name in enumerate(order):
                 side = sides[name]
                 n = k // 2 + 1
@@ -373,6 +394,7 @@ def compare(
         "options_passed": list(options),
         "ratio": "> 1 means this code is better: REF/this for times, this/REF for rates",
         "ref_tree": str(tree),  # removed by now; recorded so a reader can check it is gone
+        "ref_compile_seconds": warm_s,
         "sides": {
             name: {**side.describe(), "run_seconds": seconds[name], "runs": docs[name]}
             for name, side in sides.items()
