@@ -18,7 +18,6 @@ import math
 import signal
 import threading
 import time
-from dataclasses import replace
 from types import FrameType
 from typing import Any
 
@@ -464,22 +463,8 @@ class Service:
         self.metrics.members.set(len(after))
         if self._owned is not None:
             self._owned.changed()
-        self._forget_messages()
         for w in self._workers:
             w.group_changed()
-
-    def _forget_messages(self) -> None:
-        """The group changed: the newest messages kept of streams this member neither owns
-        nor stands by for now go (no failover of theirs comes here), so what it keeps is
-        its current streams' messages, not every stream it ever stood by for."""
-        if self._shared is None:
-            return
-        role = self.membership.role
-        with self._shared.lock:
-            published = self._shared.published
-            for stream, heard in list(published.items()):
-                if heard.payload is not None and role(stream) is Role.NONE:
-                    published[stream] = replace(heard, payload=None)
 
     def _wanted(self, key: str) -> bool:
         """Zenoh callback, every frame: only frames of sensors this member owns or stands
