@@ -486,7 +486,7 @@ class Service:
         if peeked is None:
             return
         stamp_ns, next_id, epoch = peeked
-        self._heard(f"{names[0]}/{names[1]}", stamp_ns, next_id, None, epoch, payload)
+        self._heard(f"{names[0]}/{names[1]}", stamp_ns, next_id, None, epoch)
 
     def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
         """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""
@@ -499,9 +499,7 @@ class Service:
             return
         frame, tracks = out
         next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-        self._heard(
-            f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch, payload
-        )
+        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch)
 
     def _heard_stream(self, sample: zenoh.Sample) -> tuple[tuple[str, str], bytes] | None:
         """The stream of a tracks sample worth learning from, and the payload (copied out
@@ -538,31 +536,21 @@ class Service:
             worker.supersede(stream)
 
     def _heard(
-        self,
-        stream: str,
-        stamp_ns: int,
-        next_id: int,
-        seq: int | None,
-        epoch: int | None,
-        payload: bytes,
+        self, stream: str, stamp_ns: int, next_id: int, seq: int | None, epoch: int | None
     ) -> None:
-        """How far planners have ``stream``, with the newest message heard (a failover whose
-        checkpoint holds its frame publishes it again: the custody machine's Republish)."""
         assert self._shared is not None
         published = self._shared.published
         with self._shared.lock:
             old = published.get(stream)
             if old is not None:
-                newer = stamp_ns >= old.stamp_ns
                 published[stream] = Heard(
                     max(old.stamp_ns, stamp_ns),
                     max(old.next_id, next_id),
                     _top(old.seq, seq),
                     _top(old.epoch, epoch),
-                    payload if newer else old.payload,
                 )
             elif len(published) < MAX_PUBLISHED:
-                published[stream] = Heard(stamp_ns, next_id, seq, epoch, payload)
+                published[stream] = Heard(stamp_ns, next_id, seq, epoch)
 
     def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
         names = self.keys.service_sensor_of(str(sample.key_expr))

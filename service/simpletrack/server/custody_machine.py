@@ -159,16 +159,6 @@ class Resend:
 
 
 @dataclass(frozen=True, slots=True)
-class Republish:
-    """Publish the newest message heard on a stream's key again, as this member's (its
-    instance and epoch): a failover's state holds that message's frame, and the dead holder
-    may have written it to some links only (planners' readers drop a repeat)."""
-
-    stream: str
-    payload: bytes
-
-
-@dataclass(frozen=True, slots=True)
 class AnnounceMissed:
     stream: str
     frames: int
@@ -186,7 +176,7 @@ class RaiseIds:
 
 Action = (
     Track[F] | Skip[F] | Keep[F] | NotOwned[F] | Drop[F] | Ask | Resolve | FetchCache | Release
-    | Stash | Resend | Republish | AnnounceMissed | RaiseIds
+    | Stash | Resend | AnnounceMissed | RaiseIds
 )  # fmt: skip
 
 
@@ -209,7 +199,6 @@ class Heard:
     next_id: int  # above every id heard on the key
     seq: int | None = None  # a fused vehicle's message seq (its own counter)
     epoch: int | None = None
-    payload: bytes | None = None  # the newest message heard, as it came
 
 
 class Coverage(Protocol[F]):  # type: ignore[misc]
@@ -298,7 +287,6 @@ class Takeover(Generic[F]):
     from_cache: int = 0
     exact_ids: bool = True  # the replay covers every seq since the state
     resend: bytes | None = None  # its own stash's last message, sent again first
-    republish: bytes | None = None  # the newest message heard, which the state holds
     # A fused vehicle's sensors: the stamp each was answered up to on its own key (by a
     # member of before fusion); their frames up to it are skipped, wherever they come from.
     answered_upto: dict[str, int] = field(default_factory=dict)
@@ -541,19 +529,6 @@ class CustodyMachine(Generic[F]):
             # their ids above every one heard.
             source = Source.LOST
         t = Takeover(stream, source, snap, last, kept, answered_upto=answered_upto)
-        if (
-            source is Source.FAILOVER
-            and snap is not None
-            and last is not None
-            and last.payload is not None
-            and snap.last_stamp_ns is not None
-            and snap.last_stamp_ns >= last.stamp_ns
-        ):
-            # The checkpoint holds the newest frame heard answered: no replay publishes it
-            # again, and the dead holder may have put it on this member's link (ahead of
-            # the checkpoint) but not on the planners' (a SIGKILL between two links'
-            # flushes: once in CI, a frame no planner got).
-            t.republish = last.payload
         if source is Source.RESTORE and resend is not None and snap is not None:
             # Its own stash taken back: sent again unless another member published the
             # stream with a higher epoch meanwhile (readers drop the old message then; that
@@ -832,8 +807,6 @@ class CustodyMachine(Generic[F]):
             t.exact_ids = t.missed == 0
         if t.resend is not None:
             acts.append(Resend(stream, t.resend))
-        if t.republish is not None:
-            acts.append(Republish(stream, t.republish))
         if t.missed:
             restarted = _sensor_of(cov.key) if isinstance(cov, RestartCoverage) else None
             acts.append(AnnounceMissed(stream, t.missed, restarted))
@@ -989,7 +962,7 @@ def _sensor_of(key: str) -> str:
 
 __all__ = [
     "Action", "AnnounceMissed", "Ask", "Budget", "Coverage", "CustodyMachine", "Drop", "FetchCache",
-    "Heard", "Keep", "Limits", "NotOwned", "Phase", "RaiseIds", "Release", "Released", "Republish",
+    "Heard", "Keep", "Limits", "NotOwned", "Phase", "RaiseIds", "Release", "Released",
     "Resend", "Resolve", "RestartCoverage", "Role", "SensorCoverage", "Skip", "Source", "Stash", "Takeover", "Track", "View",
     "epoch_tag", "next_epoch",
 ]  # fmt: skip
