@@ -186,13 +186,12 @@ def run_once(
     code; its JSON document with ``imported`` (the files it loaded) added."""
     out, imported = work / f"{tag}.json", work / f"{tag}.imported.json"
     log_out, log_err = work / f"{tag}.stdout", work / f"{tag}.stderr"
-    # Only this side's folders: the caller's PYTHONPATH may name this checkout, which would
-    # shadow REF's modules.
-    env = {**os.environ, "PYTHONPATH": side.pythonpath()}
     # -P: no current directory on sys.path, so no stray tree there shadows either side.
     cmd = [sys.executable, "-P", "-c", BOOTSTRAP, str(imported), "bench", bench, *options]
     with log_out.open("wb") as so, log_err.open("wb") as se:
-        rc = subprocess.run([*cmd, "--json", str(out)], env=env, stdout=so, stderr=se).returncode
+        rc = subprocess.run(
+            [*cmd, "--json", str(out)], env=_env(side), stdout=so, stderr=se
+        ).returncode
     if rc != 0 or not out.is_file():
         tail = log_err.read_text(errors="replace").strip().splitlines()[-STDERR_TAIL:]
         raise AgainstError(
@@ -205,17 +204,22 @@ def run_once(
     return doc
 
 
+def _env(side: Side) -> dict[str, str]:
+    """A child's environment: only ``side``'s folders on PYTHONPATH (the caller's may name this
+    checkout, which would shadow REF's modules)."""
+    return {**os.environ, "PYTHONPATH": side.pythonpath()}
+
+
 def warm_kernels(side: Side, work: Path) -> float:
     """Compile ``side``'s kernels once, before its timed runs; returns the seconds it took.
     REF's tree is fresh, numba's cache beside its sources empty: every run of it compiled
     them again, and a service run waits for them before it is ready (on 2 cores over a
     minute: past the bench's readiness wait, so `bench service --against` could not run at
     all). A REF whose core has no ``preload`` compiles in its runs, as before."""
-    env = {**os.environ, "PYTHONPATH": side.pythonpath()}
     t0 = time.monotonic()
     with (work / "ref-warm.stderr").open("wb") as err:
         cmd = [sys.executable, "-P", "-c", WARM]
-        subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err, check=False)
+        subprocess.run(cmd, env=_env(side), stdout=subprocess.DEVNULL, stderr=err, check=False)
     return round(time.monotonic() - t0, 1)
 
 

@@ -482,7 +482,7 @@ class Worker(threading.Thread):
         acts = self.custody.machine.refill(stream, item, cov, session)
         if acts is None:
             return False
-        vehicle, sensor = item.key.split("/")[-3:-1]
+        vehicle, sensor = self._names(item.key) or ("", "")  # a key tracked already: valid
         self.ctx.metrics.restart_refills.inc()
         log.info("publisher_restart_unheard", vehicle=vehicle, sensor=sensor, seq=arrival.seq,
                  last_seq=last.seq, stream=stream)  # fmt: skip
