@@ -12,6 +12,11 @@ Guarantees, one table test (or a group) each:
  G4  replay: frames the state holds are skipped; frames planners have tracks of are
      tracked without publishing, except after a failover the last one heard (at least
      once: the dead member may have been killed halfway through that put).
+ G4b a failover whose checkpoint holds the newest frame heard answered publishes that
+     message again, as the new owner's (the dead holder may have written it to the
+     standby's link but not to the planners'); not when the replay publishes it anyway
+     (an older checkpoint), nor after a hand-off or from a final checkpoint (its holder
+     stopped cleanly, having published all it heard: a stop answers each frame once).
  G5  kept, cached and waiting frames overlap: each frame is tracked once, in stamp order.
  G6  a gap after the state is asked of the vehicle's cache (restore, failover, hand-off):
      its newest frames back to the state (all it keeps when that was not enough); filled: ids exactly as an uninterrupted run (no floor raised); not filled: the hole is
@@ -72,6 +77,7 @@ from simpletrack.server.custody_machine import (
     Phase,
     RaiseIds,
     Release,
+    Republish,
     Resend,
     Resolve,
     RestartCoverage,
@@ -268,6 +274,37 @@ def test_g4_replay_skips_the_state_and_quiets_what_planners_have(
     assert not any(isinstance(a, (AnnounceMissed, RaiseIds)) for a in acts)
     # live frames after the replay: published
     assert tracked(m.frame(S, f(10), view(), 0.0)) == [(10, True)]
+
+
+# ---------------------------------------------------------------------- G4b
+@pytest.mark.parametrize(
+    ("replies", "state", "republished"),
+    [
+        ("failover", 6, True),
+        ("failover", 5, False),
+        ("final", 6, False),
+        ("handoff", 6, False),
+    ],
+)
+def test_g4b_a_failover_whose_checkpoint_holds_the_last_answer_publishes_it_again(
+    replies: str, state: int, republished: bool
+) -> None:
+    m = machine()
+    for q in range(3, 9):
+        m.frame(S, f(q), view(Role.STANDBY), 0.0)
+    snapshot = snap(state, written_ns=10)
+    if replies != "handoff":
+        m.checkpoint(S, snapshot, final=replies == "final")
+    assert m.frame(S, f(9), view(), 0.0) == [Ask(S)]
+    last = Heard(600, 9, payload=b"tracks of 6")
+
+    acts = take(m, [snapshot] if replies == "handoff" else [], snapshot, lambda _: last)
+    again = [a for a in acts if isinstance(a, Republish)]
+    assert again == ([Republish(S, b"tracks of 6")] if republished else [])
+    if republished:  # before anything the replay publishes
+        assert acts.index(again[0]) < min(i for i, a in enumerate(acts) if isinstance(a, Track))
+    # 6 published again by the replay instead, the other way round
+    assert ((6, True) in tracked(acts)) is (replies == "failover" and not republished)
 
 
 # ---------------------------------------------------------------------- G5

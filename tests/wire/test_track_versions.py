@@ -21,6 +21,7 @@ from simpletrack.wire import (
 )
 from simpletrack.wire.columns import covariance_from_upper, covariance_to_upper
 from simpletrack.wire.fields import Invalid
+from simpletrack.wire.header import restamp_tracks
 from simpletrack.wire.messages import TRACK_FRAME_V1
 from simpletrack.wire.track_ids import global_id, global_ids
 
@@ -178,3 +179,17 @@ def test_global_ids_name_vehicle_sensor_and_id() -> None:
     assert global_id("truck-07", "lidar_top", 2**40) == "truck-07/lidar_top/1099511627776"
     ids = np.array([3, 9], dtype=np.int64)
     assert global_ids("v", "s", ids) == ["v/s/3", "v/s/9"]
+
+
+def test_a_republished_track_frame_keeps_all_but_its_publisher_epoch_and_time() -> None:
+    tracks = _arrays()
+    kw: dict[str, Any] = dict(
+        vehicle="truck-07", sensor="lidar_top", seq=1, stamp_ns=5, frame_id="world",
+        pose=None, key_frame=True, instance="svc", received_ns=6, published_ns=7,
+        tracks=tracks,
+    )  # fmt: skip
+    old = encode_track_frame(**kw, epoch=5)
+    again = restamp_tracks(old, "svc-b", 6, 99)
+    assert again == encode_track_frame(**{**kw, "instance": "svc-b", "published_ns": 99}, epoch=6)
+    no_epoch = encode_track_frame(**kw, schema_version=2)  # a reader of before the epoch
+    assert _decode(restamp_tracks(no_epoch, "svc-b", 6, 99) or b"")[0].epoch is None

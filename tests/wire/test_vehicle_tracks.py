@@ -24,6 +24,7 @@ from simpletrack.wire import (
     generate,
 )
 from simpletrack.wire.fields import Invalid, string
+from simpletrack.wire.header import restamp_tracks
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.messages import NAME_PATTERN
 from simpletrack.wire.track_ids import global_id, global_ids
@@ -222,3 +223,16 @@ def test_a_fused_tracks_global_id_names_the_vehicle_stream() -> None:
         "veh01/@vehicle/3",
         "veh01/@vehicle/9",
     ]
+
+
+def test_a_republished_frame_is_the_same_but_for_who_published_it_and_when() -> None:
+    # A failover's new owner publishes the dead holder's last message again as its own.
+    tracks = _arrays()
+    old = _encode(tracks, epoch=(3 << 16) | 7)
+    again = restamp_tracks(old, "svc-b", (4 << 16) | 9, 99)
+    assert again is not None
+    (f0, t0), (f1, t1) = _decode(old), _decode(again)
+    assert (f1.instance, f1.epoch, f1.published_ns) == ("svc-b", (4 << 16) | 9, 99)
+    assert replace(f1, instance=f0.instance, epoch=f0.epoch, published_ns=7) == f0
+    assert all(np.array_equal(getattr(t0, c), getattr(t1, c)) for c in ("id", "center"))
+    assert restamp_tracks(b"\xc1garbage", "svc-b", 1, 99) is None

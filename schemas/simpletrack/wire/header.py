@@ -81,3 +81,18 @@ def peek_heard(payload: bytes) -> tuple[int, int, int | None] | None:
         return stamp, 0, epoch
     top = int(np.frombuffer(ids, dtype="<i8").max())
     return (stamp, top + 1, epoch) if top >= 0 else None
+
+
+def restamp_tracks(
+    payload: bytes, instance: str, epoch: int | None, published_ns: int
+) -> bytes | None:
+    """A tracks message (TrackFrame or VehicleTrackFrame) as another member publishes it again:
+    its ``instance``, ``published_ns`` and, where it has one, its ``epoch`` replaced, every
+    other field (the tracks' columns among them) kept as it was. None when it cannot be read."""
+    obj = _map(payload)
+    if obj is None or not isinstance(obj.get("tracks"), dict):
+        return None
+    obj["instance"], obj["published_ns"] = instance, published_ns
+    if "epoch" in obj and epoch is not None:
+        obj["epoch"] = epoch
+    return bytes(msgpack.packb(obj, use_bin_type=True))

@@ -18,6 +18,7 @@ import math
 import signal
 import threading
 import time
+from dataclasses import replace
 from types import FrameType
 from typing import Any
 
@@ -463,8 +464,22 @@ class Service:
         self.metrics.members.set(len(after))
         if self._owned is not None:
             self._owned.changed()
+        self._forget_messages()
         for w in self._workers:
             w.group_changed()
+
+    def _forget_messages(self) -> None:
+        """The group changed: the newest messages kept of streams this member neither owns
+        nor stands by for now go (no failover of theirs comes here), so what it keeps is
+        its current streams' messages, not every stream it ever stood by for."""
+        if self._shared is None:
+            return
+        role = self.membership.role
+        with self._shared.lock:
+            published = self._shared.published
+            for stream, heard in list(published.items()):
+                if heard.payload is not None and role(stream) is Role.NONE:
+                    published[stream] = replace(heard, payload=None)
 
     def _wanted(self, key: str) -> bool:
         """Zenoh callback, every frame: only frames of sensors this member owns or stands
@@ -486,7 +501,7 @@ class Service:
         if peeked is None:
             return
         stamp_ns, next_id, epoch = peeked
-        self._heard(f"{names[0]}/{names[1]}", stamp_ns, next_id, None, epoch)
+        self._heard(f"{names[0]}/{names[1]}", stamp_ns, next_id, None, epoch, payload)
 
     def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
         """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""
@@ -499,7 +514,9 @@ class Service:
             return
         frame, tracks = out
         next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-        self._heard(f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch)
+        self._heard(
+            f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch, payload
+        )
 
     def _heard_stream(self, sample: zenoh.Sample) -> tuple[tuple[str, str], bytes] | None:
         """The stream of a tracks sample worth learning from, and the payload (copied out
@@ -536,21 +553,31 @@ class Service:
             worker.supersede(stream)
 
     def _heard(
-        self, stream: str, stamp_ns: int, next_id: int, seq: int | None, epoch: int | None
+        self,
+        stream: str,
+        stamp_ns: int,
+        next_id: int,
+        seq: int | None,
+        epoch: int | None,
+        payload: bytes,
     ) -> None:
+        """How far planners have ``stream``, with the newest message heard (a failover whose
+        checkpoint holds its frame publishes it again: the custody machine's Republish)."""
         assert self._shared is not None
         published = self._shared.published
         with self._shared.lock:
             old = published.get(stream)
             if old is not None:
+                newer = stamp_ns >= old.stamp_ns
                 published[stream] = Heard(
                     max(old.stamp_ns, stamp_ns),
                     max(old.next_id, next_id),
                     _top(old.seq, seq),
                     _top(old.epoch, epoch),
+                    payload if newer else old.payload,
                 )
             elif len(published) < MAX_PUBLISHED:
-                published[stream] = Heard(stamp_ns, next_id, seq, epoch)
+                published[stream] = Heard(stamp_ns, next_id, seq, epoch, payload)
 
     def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
         names = self.keys.service_sensor_of(str(sample.key_expr))

@@ -32,7 +32,7 @@ from simpletrack.server.custody_machine import (
     View,
 )
 from simpletrack.server.group import Membership
-from simpletrack.server.intake import FRAME_OVERHEAD, Inbound
+from simpletrack.server.intake import FINAL_CHECKPOINT, FRAME_OVERHEAD, Inbound
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
 from simpletrack.server.outbox import MSGPACK, Outbox
@@ -140,7 +140,7 @@ class Custody:
         stream = f"{snap.vehicle}/{snap.sensor}"
         held = self.registry.get(stream)
         if held is None:
-            self.machine.checkpoint(stream, snap)
+            self.machine.checkpoint(stream, snap, item.final)
             return []
         if snap.epoch is not None and snap.epoch > held.epoch:
             acts = self.machine.superseded(stream, time.monotonic())
@@ -331,7 +331,7 @@ class Custody:
         self.shared.count("handoffs_out")
         log.info("sensor_handed_off", vehicle=vehicle, sensor=sensor, to=to, seq=snap.last_seq)
         if push:
-            self._put_checkpoint(to, vehicle, sensor, snap)
+            self._put_checkpoint(to, vehicle, sensor, snap, final=True)  # all published
         return snap
 
     def stash(self, stream: str) -> SensorSnapshot | None:
@@ -380,7 +380,8 @@ class Custody:
                 new_standby_only=new_standby_only,
             ):
                 continue
-            if not self._put_checkpoint(standby, s.vehicle, s.sensor, self.registry.state_of(s)):
+            snap = self.registry.state_of(s)
+            if not self._put_checkpoint(standby, s.vehicle, s.sensor, snap, final):
                 continue
             s.checkpoint_mark = CheckpointMark(standby, s.frames, now)
             sent += 1
@@ -388,7 +389,9 @@ class Custody:
             sh.metrics.checkpoints_sent.inc(sent)
         return sent
 
-    def _put_checkpoint(self, to: str, vehicle: str, sensor: str, snap: SensorSnapshot) -> bool:
+    def _put_checkpoint(
+        self, to: str, vehicle: str, sensor: str, snap: SensorSnapshot, final: bool = False
+    ) -> bool:
         sh = self.shared
         payload = encode(snap)
         try:
@@ -397,6 +400,7 @@ class Custody:
                 payload,
                 encoding=MSGPACK,
                 congestion_control=zenoh.CongestionControl.BLOCK,
+                attachment=FINAL_CHECKPOINT if final else None,
             )
         except zenoh.ZError as e:
             log.warning("checkpoint_failed", vehicle=vehicle, sensor=sensor, error=str(e))

@@ -159,6 +159,16 @@ class Resend:
 
 
 @dataclass(frozen=True, slots=True)
+class Republish:
+    """Publish the newest message heard on a stream's key again, as this member's (its
+    instance and epoch): a failover's state holds that message's frame, and the dead holder
+    may have written it to some links only (planners' readers drop a repeat)."""
+
+    stream: str
+    payload: bytes
+
+
+@dataclass(frozen=True, slots=True)
 class AnnounceMissed:
     stream: str
     frames: int
@@ -176,7 +186,7 @@ class RaiseIds:
 
 Action = (
     Track[F] | Skip[F] | Keep[F] | NotOwned[F] | Drop[F] | Ask | Resolve | FetchCache | Release
-    | Stash | Resend | AnnounceMissed | RaiseIds
+    | Stash | Resend | Republish | AnnounceMissed | RaiseIds
 )  # fmt: skip
 
 
@@ -199,6 +209,7 @@ class Heard:
     next_id: int  # above every id heard on the key
     seq: int | None = None  # a fused vehicle's message seq (its own counter)
     epoch: int | None = None
+    payload: bytes | None = None  # the newest message heard, as it came
 
 
 class Coverage(Protocol[F]):  # type: ignore[misc]
@@ -287,6 +298,7 @@ class Takeover(Generic[F]):
     from_cache: int = 0
     exact_ids: bool = True  # the replay covers every seq since the state
     resend: bytes | None = None  # its own stash's last message, sent again first
+    republish: bytes | None = None  # the newest message heard, which the state holds
     # A fused vehicle's sensors: the stamp each was answered up to on its own key (by a
     # member of before fusion); their frames up to it are skipped, wherever they come from.
     answered_upto: dict[str, int] = field(default_factory=dict)
@@ -340,6 +352,7 @@ class _Stream(Generic[F]):
 @dataclass(slots=True)
 class _Standby(Generic[F]):
     checkpoint: SensorSnapshot | None = None
+    final: bool = False  # the checkpoint is the one its holder sent as it stopped cleanly
     frames: deque[tuple[int | None, F]] = field(default_factory=deque)  # (stamp, frame)
 
 
@@ -496,6 +509,8 @@ class CustodyMachine(Generic[F]):
         then calls ``adopted``."""
         s = self._streams.setdefault(stream, _Stream())
         self.released.pop(stream, None)
+        standby = self._standby.get(stream)
+        final = standby is not None and standby.final
         checkpoint, kept = self._take_standby(stream)
         vehicle, name = stream.split("/")
         answered_upto: dict[str, int] = {}
@@ -529,6 +544,22 @@ class CustodyMachine(Generic[F]):
             # their ids above every one heard.
             source = Source.LOST
         t = Takeover(stream, source, snap, last, kept, answered_upto=answered_upto)
+        if (
+            source is Source.FAILOVER
+            and not final
+            and snap is not None
+            and last is not None
+            and last.payload is not None
+            and snap.last_stamp_ns is not None
+            and snap.last_stamp_ns >= last.stamp_ns
+        ):
+            # The checkpoint holds the newest frame heard answered: no replay publishes it
+            # again, and the dead holder may have put it on this member's link (ahead of
+            # the checkpoint) but not on the planners' (a SIGKILL between two links'
+            # flushes: once in CI, a frame no planner got). Not after a final checkpoint:
+            # its holder stopped cleanly, every message out, and a stop answers each frame
+            # once.
+            t.republish = last.payload
         if source is Source.RESTORE and resend is not None and snap is not None:
             # Its own stash taken back: sent again unless another member published the
             # stream with a higher epoch meanwhile (readers drop the old message then; that
@@ -648,8 +679,9 @@ class CustodyMachine(Generic[F]):
         """The worker released the stream with this state (asked again: the same answer)."""
         self.released[stream] = Released(snap, to, now)
 
-    def checkpoint(self, stream: str, snap: SensorSnapshot) -> None:
-        """The owner's state, for a stream this member stands by for."""
+    def checkpoint(self, stream: str, snap: SensorSnapshot, final: bool = False) -> None:
+        """The owner's state, for a stream this member stands by for (``final``: the one it
+        sent as it stopped, after publishing every frame's tracks)."""
         if self.phase(stream) in _HELD:
             return
         held = self._standby_of(stream)
@@ -658,7 +690,7 @@ class CustodyMachine(Generic[F]):
         old = held.checkpoint
         if old is not None and old.written_ns > snap.written_ns:
             return  # an older one overtaken on the way
-        held.checkpoint = snap
+        held.checkpoint, held.final = snap, final
         last = snap.last_stamp_ns
         if last is not None:
             while held.frames and (held.frames[0][0] or 0) <= last:
@@ -807,6 +839,8 @@ class CustodyMachine(Generic[F]):
             t.exact_ids = t.missed == 0
         if t.resend is not None:
             acts.append(Resend(stream, t.resend))
+        if t.republish is not None:
+            acts.append(Republish(stream, t.republish))
         if t.missed:
             restarted = _sensor_of(cov.key) if isinstance(cov, RestartCoverage) else None
             acts.append(AnnounceMissed(stream, t.missed, restarted))
@@ -962,7 +996,7 @@ def _sensor_of(key: str) -> str:
 
 __all__ = [
     "Action", "AnnounceMissed", "Ask", "Budget", "Coverage", "CustodyMachine", "Drop", "FetchCache",
-    "Heard", "Keep", "Limits", "NotOwned", "Phase", "RaiseIds", "Release", "Released",
+    "Heard", "Keep", "Limits", "NotOwned", "Phase", "RaiseIds", "Release", "Released", "Republish",
     "Resend", "Resolve", "RestartCoverage", "Role", "SensorCoverage", "Skip", "Source", "Stash", "Takeover", "Track", "View",
     "epoch_tag", "next_epoch",
 ]  # fmt: skip

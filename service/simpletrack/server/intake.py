@@ -71,6 +71,11 @@ class Kind(Enum):
     CHECKPOINT = "checkpoint"  # another member's state of a sensor this one stands by for
 
 
+# The attachment of the checkpoints a member sends as it stops, after every frame's tracks
+# went out: a failover from one has nothing to publish again (custody_machine.answered).
+FINAL_CHECKPOINT = b"final"
+
+
 @dataclass(frozen=True, slots=True)
 class Inbound:
     """A payload as received: its key, bytes, and when it arrived."""
@@ -83,6 +88,7 @@ class Inbound:
     # The publisher's Zenoh sequence number, for a frame a vehicle's cache answered (its
     # first sample is 0): how many it published before; None for a live frame (not read).
     source_sn: int | None = None
+    final: bool = False  # a checkpoint its holder sent as it stopped (FINAL_CHECKPOINT)
 
 
 def stamp_of(item: Inbound) -> int | None:
@@ -541,7 +547,11 @@ class Intake:
         """A checkpoint goes to the worker of the sensor it is of (its own lane)."""
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
-        item = Inbound(key, payload, time.time_ns(), time.perf_counter(), Kind.CHECKPOINT)
+        attachment = sample.attachment
+        final = attachment is not None and attachment.to_bytes() == FINAL_CHECKPOINT
+        item = Inbound(
+            key, payload, time.time_ns(), time.perf_counter(), Kind.CHECKPOINT, final=final
+        )
         self._enqueue(detections_key, item)
 
     def _enqueue(self, route: str, item: Inbound) -> None:
@@ -570,6 +580,7 @@ def depth(queues: list[WorkQueue]) -> int:
 
 __all__ = [
     "CATCHUP_AFTER_S",
+    "FINAL_CHECKPOINT",
     "FRAME_OVERHEAD",
     "MAX_CHECKPOINTS",
     "MAX_QUERIES",

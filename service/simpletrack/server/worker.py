@@ -31,6 +31,7 @@ from simpletrack.server.custody_machine import (
     NotOwned,
     RaiseIds,
     Release,
+    Republish,
     Resend,
     Resolve,
     RestartCoverage,
@@ -84,6 +85,7 @@ from simpletrack.wire.codec import (
 )
 from simpletrack.wire.columns import TrackArrays
 from simpletrack.wire.convert import frame_from_wire, tracks_to_wire, tracks_to_wire_checked
+from simpletrack.wire.header import peek_header, restamp_tracks
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
 from simpletrack.wire.reasons import TRACK_EPOCH_SCHEMA_VERSION, ErrorReason
@@ -375,6 +377,8 @@ class Worker(threading.Thread):
             elif isinstance(act, Resend):
                 vehicle, holder = act.stream.split("/")
                 self.outbox.resend(vehicle, holder, act.payload)
+            elif isinstance(act, Republish):
+                self._republish(act.stream, act.payload)
 
     def _track_in(self, stream: str, item: Inbound, publish: bool, replayed: bool) -> None:
         if is_vehicle_stream(stream):
@@ -452,6 +456,19 @@ class Worker(threading.Thread):
             )
 
         self.custody.fetch_cache(vehicle, holder, done, newest)
+
+    def _republish(self, stream: str, payload: bytes) -> None:
+        """The newest message heard on the stream's key, as this member's (a failover whose
+        checkpoint holds its frame: custody_machine.Republish)."""
+        state = self.sensors.get(stream)
+        vehicle, holder = stream.split("/")
+        epoch = None if state is None else state.epoch
+        again = restamp_tracks(payload, self.ctx.settings.instance, epoch, time.time_ns())
+        if again is None:
+            return
+        log.info("tracks_republished", vehicle=vehicle, sensor=holder,
+                 seq=peek_header(payload)[0])  # fmt: skip
+        self.outbox.resend(vehicle, holder, again)
 
     def _announce_missed(self, vehicle: str, sensor: str, n: int, at: str = "takeover") -> None:
         """``at``: a takeover's gap (a fused vehicle's told per sensor) or a restarted
