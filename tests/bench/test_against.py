@@ -188,3 +188,50 @@ def test_an_interrupted_comparison_removes_refs_tree(tmp_path: Path, how: str) -
     assert proc.returncode != 0
     assert "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--server-only"], "--server-only needs --against REF"),
+        (["--against", "HEAD", "--profile", "p"], "--profile combines with --against only with"),
+    ],
+)
+def test_server_only_and_profile_refusals_name_what_is_missing(
+    capsys: Any, extra: list[str], message: str
+) -> None:
+    spy = shutil.which("py-spy") or (Path(sys.executable).parent / "py-spy").exists()
+    if "--profile" in extra and not spy:
+        pytest.skip("--profile needs py-spy before it reaches --against")
+    rc = main(["bench", "service", "--source", "synthetic", "--sensors", "1", *extra])
+    assert rc != 0
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_server_only_runs_this_bench_with_the_other_side_s_service_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    this = against.Side("this", "this code", tmp_path / "a", None, False)
+    ref = against.Side("ref", "REF", tmp_path / "b", "0" * 40, False)
+    monkeypatch.setenv(against.SERVER_PATH_ENV, "stray")  # a caller's never leaks into a run
+    plain = against._env(ref)
+    assert plain["PYTHONPATH"] == ref.pythonpath() and against.SERVER_PATH_ENV not in plain
+    mixed = against._env(this, server=ref)
+    assert mixed["PYTHONPATH"] == this.pythonpath()
+    assert mixed[against.SERVER_PATH_ENV] == ref.pythonpath()
+    assert str(tmp_path / "b" / "service") in mixed[against.SERVER_PATH_ENV].split(os.pathsep)
+
+
+def test_the_interpreter_lock_per_frame_is_compared_when_both_sides_profiled_it() -> None:
+    def doc(gil: float | None) -> dict[str, Any]:
+        step = {"kind": "tracker", "sensors": 60, "latency": {"p50_ms": 1.0, "p99_ms": 2.0}}
+        if gil is not None:
+            step["profile"] = {"gil_ms_per_frame": gil}
+        return {"steps": [step], "capacity": {}}
+
+    rows = {r["figure"]: r for r in compare_docs("service", [doc(0.25)], [doc(0.5)])}
+    lock = rows["tracker 60 sensors interpreter lock per frame"]
+    assert lock["ratio"] == pytest.approx(2.0)
+    unprofiled = {r["figure"] for r in compare_docs("service", [doc(None)], [doc(None)])}
+    assert not any("interpreter lock" in name for name in unprofiled)

@@ -40,6 +40,9 @@ Bench = Literal["core", "service"]
 FOLDERS = ("service", "schemas", "clients")  # the package's portions, as in the checkout
 MISSING = "–"  # a figure one side does not report
 STDERR_TAIL = 15  # lines of a failed run's stderr quoted in the error
+# The service process's PYTHONPATH when set (bench/service.py launch_tracker): `bench service
+# --against REF --server-only` runs this checkout's bench and load generator with REF's service.
+SERVER_PATH_ENV = "SIMPLETRACK_BENCH_SERVER_PATH"
 
 # The child: record which files it imported (the proof of which code ran), then run the
 # command-line entry point exactly as `simpletrack` would.
@@ -180,17 +183,24 @@ def _terminate_as_interrupt() -> Iterator[None]:
 
 # ----------------------------------------------------------------------------- runs
 def run_once(
-    side: Side, bench: Bench, options: Sequence[str], work: Path, tag: str
+    side: Side,
+    bench: Bench,
+    options: Sequence[str],
+    work: Path,
+    tag: str,
+    server: Side | None = None,
 ) -> dict[str, Any]:
     """One fresh interpreter running ``simpletrack bench BENCH OPTIONS --json`` with ``side``'s
-    code; its JSON document with ``imported`` (the files it loaded) added."""
+    code; its JSON document with ``imported`` (the files it loaded) added. ``server``: the
+    side whose code the service process runs (``bench service --server-only``), else
+    ``side``'s."""
     out, imported = work / f"{tag}.json", work / f"{tag}.imported.json"
     log_out, log_err = work / f"{tag}.stdout", work / f"{tag}.stderr"
     # -P: no current directory on sys.path, so no stray tree there shadows either side.
     cmd = [sys.executable, "-P", "-c", BOOTSTRAP, str(imported), "bench", bench, *options]
     with log_out.open("wb") as so, log_err.open("wb") as se:
         rc = subprocess.run(
-            [*cmd, "--json", str(out)], env=_env(side), stdout=so, stderr=se
+            [*cmd, "--json", str(out)], env=_env(side, server), stdout=so, stderr=se
         ).returncode
     if rc != 0 or not out.is_file():
         tail = log_err.read_text(errors="replace").strip().splitlines()[-STDERR_TAIL:]
@@ -204,10 +214,14 @@ def run_once(
     return doc
 
 
-def _env(side: Side) -> dict[str, str]:
+def _env(side: Side, server: Side | None = None) -> dict[str, str]:
     """A child's environment: only ``side``'s folders on PYTHONPATH (the caller's may name this
-    checkout, which would shadow REF's modules)."""
-    return {**os.environ, "PYTHONPATH": side.pythonpath()}
+    checkout, which would shadow REF's modules); ``server``'s for the service it starts."""
+    env = {**os.environ, "PYTHONPATH": side.pythonpath()}
+    env.pop(SERVER_PATH_ENV, None)
+    if server is not None:
+        env[SERVER_PATH_ENV] = server.pythonpath()
+    return env
 
 
 def warm_kernels(side: Side, work: Path) -> float:
@@ -266,6 +280,9 @@ def service_figures(doc: dict[str, Any]) -> dict[Figure, float | None]:
         out[Figure(f"{step} delivered", "rate", "frames/s")] = _num(s.get("delivered_per_s"))
         cpu = _num(s.get("server_cpu_ms_per_frame"))
         out[Figure(f"{step} server CPU per frame", "time", "ms")] = cpu
+        gil = _num((s.get("profile") or {}).get("gil_ms_per_frame"))
+        if gil is not None:  # --profile-gil (--server-only: both sides' services profiled)
+            out[Figure(f"{step} interpreter lock per frame", "time", "ms")] = gil
     cap = doc.get("capacity") or {}
     out[Figure("1 sensor p99", "time", "ms")] = _num(cap.get("one_sensor_p99_ms"))
     out[Figure("largest passing step", "rate", "sensors")] = _num(cap.get("max_sensors_passing"))
@@ -361,9 +378,14 @@ def compare(
     rounds: int,
     progress: Callable[[str], None] = print,
     root: Path | None = None,
+    server_only: bool = False,
+    per_run: Callable[[str], list[str]] | None = None,
 ) -> dict[str, Any]:
     """Run ``simpletrack bench BENCH OPTIONS`` ``rounds`` times with this code and with REF's,
-    alternating, and compare the medians. Raises AgainstError with a one-line reason."""
+    alternating, and compare the medians. ``server_only`` (bench service): both sides' runs
+    are this code's bench and load generator, only the service process runs each side's
+    code. ``per_run(tag)``: options for one run only (``this-1``, ``ref-1``, ...). Raises
+    AgainstError with a one-line reason."""
     root = root or checkout_root()
     this = this_side(root)
     revision = resolve(root, ref)
@@ -387,13 +409,19 @@ def compare(
                 n = k // 2 + 1
                 progress(f"round {n}/{rounds}: {side.label} ...")
                 t0 = time.monotonic()
-                docs[name].append(run_once(side, bench, options, work, f"{name}-{n}"))
+                tag = f"{name}-{n}"
+                opts = [*options, *(per_run(tag) if per_run else ())]
+                if server_only:
+                    docs[name].append(run_once(this, bench, opts, work, tag, server=side))
+                else:
+                    docs[name].append(run_once(side, bench, opts, work, tag))
                 seconds[name].append(round(time.monotonic() - t0, 1))
                 progress(f"round {n}/{rounds}: {side.label} took {seconds[name][-1]:.1f} s")
     return {
         "benchmark": f"bench {bench}",
         "against": {"ref": ref, "revision": revision},
         "rounds": rounds,
+        "server_only": server_only,
         "order": order,
         "options_passed": list(options),
         "ratio": "> 1 means this code is better: REF/this for times, this/REF for rates",

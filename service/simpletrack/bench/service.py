@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from simpletrack.bench import loadgen
+from simpletrack.bench.against import SERVER_PATH_ENV
 from simpletrack.bench.generators import BenchError, Generators, generator_summary, merge_results
 from simpletrack.bench.report import generator_line
 from simpletrack.bench.stats import cdf_ms, summary_ms
@@ -180,6 +181,9 @@ def launch_tracker(
         "SIMPLETRACK_SUBSCRIBE": opts.subscribe,
         "SIMPLETRACK_IGNORE_CLASSES": json.dumps(loadgen.UNTRACKED),
     }
+    server_path = env.pop(SERVER_PATH_ENV, None)  # not a setting: serve refuses it
+    if server_path:  # bench --against REF --server-only: REF's service, this generator
+        env["PYTHONPATH"] = server_path
     if opts.fused:
         config = tmp / f"fusion-{port}.toml"
         config.write_text(FUSION_CONFIG)

@@ -148,10 +148,13 @@ against another revision (--against REF):
   alternating, each a fresh process whose server and load generator run that side's code.
   Passed through to both sides: --sensors --seconds --warmup --rate --workers --queue-size
   --source --data --synthetic-boxes --p99-limit --budget --no-echo, and the --generator-*
-  and --heartbeat flags when given (REF must know them); --profile and --plot-dir are
-  refused. A round is two full service benchmarks: with the defaults up to ~2 x 8 min, so
-  the default is 2 rounds and a comparison is best made on a few steps (--sensors 1,10,20
-  --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
+  and --heartbeat flags when given (REF must know them); --plot-dir is refused, --profile
+  too unless --server-only. With --server-only both sides' rounds run this code's bench and
+  load generator and only the service process runs REF's code: one generator for both, and
+  --profile DIR --profile-gil profiles each run's service (DIR/this-N, DIR/ref-N) and compares
+  the interpreter lock's time per frame. A round is two full service benchmarks: with the
+  defaults up to ~2 x 8 min, so the default is 2 rounds and a comparison is best made on a few
+  steps (--sensors 1,10,20 --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
   latencies and CPU per frame, this/REF for frames/s, sensors and streams per core).
 """
 
@@ -321,6 +324,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--plot-dir", type=Path, help="write service_latency_cdf.png and service_capacity.png"
     )
     _add_against_args(svc, rounds=2)
+    svc.add_argument(
+        "--server-only",
+        action="store_true",
+        help="with --against: REF's rounds run this code's bench and load generator too, only "
+        "the service process runs REF's code (one generator for both sides; --profile DIR "
+        "then profiles each run's service into DIR/this-N, DIR/ref-N)",
+    )
     svc.set_defaults(func=run_service)
 
     scale = sub.add_parser(
@@ -442,9 +452,18 @@ def _against(args: argparse.Namespace, bench: str, options: list[str]) -> int:
 
     if not (1 <= args.rounds <= 50):
         raise UserError(f"--rounds {args.rounds} must be in 1..50")
-    for flag in ("plot_dir", "profile"):
-        if getattr(args, flag, None) is not None:
-            raise UserError(f"--{flag.replace('_', '-')} does not combine with --against")
+    server_only = bool(getattr(args, "server_only", False))
+    profile: Path | None = getattr(args, "profile", None)
+    if args.plot_dir is not None:
+        raise UserError("--plot-dir does not combine with --against")
+    if profile is not None and not server_only:
+        raise UserError("--profile combines with --against only with --server-only")
+
+    def per_run(tag: str) -> list[str]:
+        if profile is None:
+            return []
+        return ["--profile", str(profile / tag), *(["--profile-gil"] if args.profile_gil else [])]
+
     _out_paths(args)
     before = machine()
     try:
@@ -454,6 +473,8 @@ def _against(args: argparse.Namespace, bench: str, options: list[str]) -> int:
             args.against,
             args.rounds,
             progress=lambda m: print(m, file=sys.stderr, flush=True),
+            server_only=server_only,
+            per_run=per_run,
         )
     except AgainstError as exc:
         raise UserError(str(exc)) from None
@@ -744,6 +765,8 @@ def run_service(args: argparse.Namespace) -> int:
 
         if not (shutil.which("py-spy") or (Path(sys.executable).parent / "py-spy").exists()):
             raise UserError("--profile needs py-spy (pip install py-spy)")
+    if args.server_only and args.against is None:
+        raise UserError("--server-only needs --against REF")
     if args.against is not None:
         return _against(
             args,
