@@ -242,6 +242,12 @@ class Metrics:
             "cache was asked for the frames before it",
             registry=r,
         )
+        self.republished = Counter(
+            "simpletrack_tracks_republished",
+            "Tracks messages a failover published again as this member's: the dead owner's "
+            "last, which its checkpoint held (a kill may have cut that put short)",
+            registry=r,
+        )
         self.not_owned = Counter(
             "simpletrack_frames_not_owned",
             "Detection frames heard for sensors of other members, dropped before decoding",

@@ -468,6 +468,7 @@ class Worker(threading.Thread):
             return
         log.info("tracks_republished", vehicle=vehicle, sensor=holder,
                  seq=peek_header(payload)[0])  # fmt: skip
+        self.ctx.metrics.republished.inc()
         self.outbox.resend(vehicle, holder, again)
 
     def _announce_missed(self, vehicle: str, sensor: str, n: int, at: str = "takeover") -> None:
