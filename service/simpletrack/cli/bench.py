@@ -453,11 +453,9 @@ def _against(args: argparse.Namespace, bench: str, options: list[str]) -> int:
     if not (1 <= args.rounds <= 50):
         raise UserError(f"--rounds {args.rounds} must be in 1..50")
     server_only = bool(getattr(args, "server_only", False))
-    profile: Path | None = getattr(args, "profile", None)
+    profile: Path | None = getattr(args, "profile", None)  # bench service: with --server-only
     if args.plot_dir is not None:
         raise UserError("--plot-dir does not combine with --against")
-    if profile is not None and not server_only:
-        raise UserError("--profile combines with --against only with --server-only")
 
     def per_run(tag: str) -> list[str]:
         if profile is None:
@@ -760,13 +758,15 @@ def run_service(args: argparse.Namespace) -> int:
         raise UserError(f"--queue-size {args.queue_size} must be in 1..100000")
     if args.profile_gil and args.profile is None:
         raise UserError("--profile-gil needs --profile DIR")
+    if args.server_only and args.against is None:
+        raise UserError("--server-only needs --against REF")
+    if args.profile is not None and args.against is not None and not args.server_only:
+        raise UserError("--profile combines with --against only with --server-only")
     if args.profile is not None:
         import shutil
 
         if not (shutil.which("py-spy") or (Path(sys.executable).parent / "py-spy").exists()):
             raise UserError("--profile needs py-spy (pip install py-spy)")
-    if args.server_only and args.against is None:
-        raise UserError("--server-only needs --against REF")
     if args.against is not None:
         return _against(
             args,
