@@ -154,8 +154,9 @@ against another revision (--against REF):
   --profile DIR --profile-gil profiles each run's service (DIR/this-N, DIR/ref-N) and compares
   the interpreter lock's time per frame. A round is two full service benchmarks: with the
   defaults up to ~2 x 8 min, so the default is 2 rounds and a comparison is best made on a few
-  steps (--sensors 1,10,20 --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code is better (REF/this for
-  latencies and CPU per frame, this/REF for frames/s, sensors and streams per core).
+  steps (--sensors 1,10,20 --seconds 5 --no-echo: ~1 min a round). Ratio > 1 when this code
+  is better (REF/this for latencies and CPU per frame, this/REF for frames/s, sensors and
+  streams per core).
 """
 
 
