@@ -81,3 +81,118 @@ def test_no_tracks_is_no_work() -> None:
     xu, pu = kf.update(xp, pp, np.zeros((0, 7)))
     assert xp.shape == (0, 10) and pp.shape == (0, 10, 10)
     assert xu.shape == (0, 10) and pu.shape == (0, 10, 10)
+
+
+def dense_loops(x: F64, p: F64, z: F64, r: F64) -> tuple[F64, F64]:
+    """The kernel's dense path as it was before the constant-velocity pattern got its own
+    (plain Python, the same scalar operations in the same order): what that path must equal
+    bit for bit."""
+    n, nx = x.shape[0], x.shape[1]
+    x_out, p_out = np.empty((n, nx)), np.empty((n, nx, nx))
+    with np.errstate(all="ignore"):  # inf times a zero is the NaN compiled code gives silently
+        _dense_loops_into(x, p, z, r, x_out, p_out)
+    return x_out, p_out
+
+
+def _dense_loops_into(x: F64, p: F64, z: F64, r: F64, x_out: F64, p_out: F64) -> None:
+    n, nx, nz = x.shape[0], x.shape[1], 7
+    for t in range(n):
+        yaw = kk._align_yaw(x[t, 3], z[t, 3])
+        y = [kk.wrap_once(z[t, i]) - yaw if i == 3 else z[t, i] - x[t, i] for i in range(nz)]
+        aug = np.zeros((nz, 2 * nz))
+        for i in range(nz):
+            for j in range(nz):
+                aug[i, j] = p[t, i, j] + r[i, j]
+                aug[i, nz + j] = 1.0 if i == j else 0.0
+        for c in range(nz):
+            pivot, best = c, abs(aug[c, c])
+            for i in range(c + 1, nz):
+                if abs(aug[i, c]) > best:
+                    pivot, best = i, abs(aug[i, c])
+            if pivot != c:
+                aug[[c, pivot]] = aug[[pivot, c]]
+            inv = 1.0 / aug[c, c]
+            for j in range(2 * nz):
+                aug[c, j] *= inv
+            for i in range(nz):
+                f = aug[i, c]
+                if i != c and f != 0.0:
+                    for j in range(2 * nz):
+                        aug[i, j] -= f * aug[c, j]
+        k = np.empty((nx, nz))
+        kr = np.empty((nx, nz))
+        ap = np.empty((nx, nx))
+        for i in range(nx):
+            for j in range(nz):
+                acc = 0.0
+                for m in range(nz):
+                    acc += p[t, i, m] * aug[m, nz + j]
+                k[i, j] = acc
+        for i in range(nx):
+            acc = 0.0
+            for m in range(nz):
+                acc += k[i, m] * y[m]
+            x_out[t, i] = (yaw if i == 3 else x[t, i]) + acc
+        x_out[t, 3] = kk.wrap_once(x_out[t, 3])
+        for i in range(nx):
+            for j in range(nz):
+                acc = 0.0
+                for m in range(nz):
+                    acc += k[i, m] * r[m, j]
+                kr[i, j] = acc
+            for j in range(nx):
+                acc = 0.0
+                for m in range(nz):
+                    acc += k[i, m] * p[t, m, j]
+                ap[i, j] = p[t, i, j] - acc
+        for i in range(nx):
+            for j in range(i, nx):
+                a_kt = krk = 0.0
+                for m in range(nz):
+                    a_kt += ap[i, m] * k[j, m]
+                    krk += kr[i, m] * k[j, m]
+                p_out[t, i, j] = p_out[t, j, i] = (ap[i, j] - a_kt) + krk
+
+
+def constant_velocity_tracks(n: int, seed: int) -> tuple[F64, F64, F64, F64]:
+    """Covariances of a constant-velocity filter's pattern (the diagonal, and each position
+    with its velocity), over many scales, with zero variances, signed zeros, and every yaw
+    flip; a diagonal R."""
+    rng = np.random.default_rng(seed)
+    scale = 10.0 ** rng.uniform(-6, 6, n)
+    p = np.zeros((n, 10, 10))
+    for i in range(10):
+        p[:, i, i] = rng.uniform(0.0, 3.0, n) * scale * (rng.random(n) > 0.05)
+    for a in range(3):
+        p[:, a, a + 7] = p[:, a + 7, a] = rng.normal(size=n) * scale * (rng.random(n) > 0.1)
+    p[rng.random(n) < 0.1, 2, 5] = -0.0  # a zero of the other sign where the pattern has none
+    x = rng.normal(size=(n, 10)) * 10.0 ** rng.uniform(-2, 2)
+    x[:, 3] = rng.uniform(-3 * np.pi + 0.01, 3 * np.pi - 0.01, n)
+    z = x[:, :7] + rng.normal(size=(n, 7)) * 10.0 ** rng.uniform(-4, 1)
+    z[:, 3] = rng.uniform(-3 * np.pi + 0.01, 3 * np.pi - 0.01, n)
+    z[rng.random(n) < 0.1, 1] = -0.0
+    return x, p, z, np.diag(rng.uniform(1e-6, 5.0, 7))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_update_on_the_constant_velocity_pattern_is_the_dense_path_bit_for_bit(seed: int) -> None:
+    x, p, z, r = constant_velocity_tracks(200, seed)
+    got = kk.update_all(x, p, z, r)
+    want = dense_loops(x, p, z, r)
+    for g, w in zip(got, want, strict=True):
+        assert g.tobytes() == w.tobytes()  # every bit, the signs of zeros too
+
+
+def test_update_off_the_pattern_takes_the_dense_path() -> None:
+    """A cross term the pattern lacks, a non-finite innovation, a full R: still the dense
+    path's numbers, bit for bit (NaN where a non-finite value meets its zeros)."""
+    x, p, z, r = constant_velocity_tracks(30, 9)
+    p[0, 0, 1] = p[0, 1, 0] = 0.25
+    z[1, 2] = np.inf
+    for rr in (r, r + 0.01 * np.eye(7, k=1) + 0.01 * np.eye(7, k=-1)):
+        got = kk.update_all(x, p, z, rr)
+        want = dense_loops(x, p, z, rr)
+        for g, w in zip(got, want, strict=True):
+            np.testing.assert_array_equal(g, w)
+            assert g.tobytes() == w.tobytes()
+    assert np.isnan(kk.update_all(x, p, z, r)[0][1]).any()  # inf times a zero of K
