@@ -242,6 +242,28 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     _add_against_args(core, rounds=3)
     core.set_defaults(func=run_core)
 
+    worker = sub.add_parser(
+        "worker",
+        help="one service worker's CPU per frame, in-process, by stage",
+        description="A real service (its session, custody, registry, outbox, metrics; one "
+        "worker) fed frames by the bench's own thread as its worker thread feeds them from its "
+        "queue: the worker's CPU per frame (thread time), then the same path by stage. No "
+        "load generator, no receive, no thread hop: steadier than bench service on a shared "
+        "machine, and blind to what those cost.",
+    )
+    worker.add_argument(
+        "--sensors", type=int, default=60, help="sensors, each a frame per turn (default 60)"
+    )
+    worker.add_argument(
+        "--frames", type=int, default=60, help="frames per sensor in each pass (default 60)"
+    )
+    worker.add_argument(
+        "--warmup", type=int, default=20, help="frames per sensor before the passes (default 20)"
+    )
+    _add_source_args(worker)
+    worker.add_argument("--json", type=Path, help="write every figure to this JSON file")
+    worker.set_defaults(func=run_worker)
+
     svc = sub.add_parser(
         "service",
         help="latency, CPU and capacity of `simpletrack serve` under a load generator",
@@ -617,6 +639,23 @@ def drawn(draw: Callable[[], list[Path]]) -> list[Path]:
     return written
 
 
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _report(benchmark: str, before: dict[str, Any], result: dict[str, Any]) -> dict[str, Any]:
+    """A run's JSON: what ran and how, the machine before and after, then every figure."""
+    from simpletrack.bench.stats import machine
+
+    return {
+        "benchmark": benchmark,
+        "command": "simpletrack " + " ".join(sys.argv[1:]),
+        "machine_before": before,
+        "machine_after": machine(),
+        **result,
+    }
+
+
 def _write_json(path: Path | None, doc: dict[str, Any]) -> None:
     if path is not None:
         path.write_text(json.dumps(doc, indent=1) + "\n")
@@ -695,14 +734,8 @@ def run_core(args: argparse.Namespace) -> int:
         args.sweep_budget,
         options,
     )
-    result = bench(opts, progress=lambda m: print(m, file=sys.stderr, flush=True))
-    doc = {
-        "benchmark": "core",
-        "command": "simpletrack " + " ".join(sys.argv[1:]),
-        "machine_before": before,
-        "machine_after": machine(),
-        **result,
-    }
+    result = bench(opts, progress=_progress)
+    doc = _report("core", before, result)
     print(core_tables(doc))
     if args.plot_dir is not None:
         plot_dir = args.plot_dir
@@ -716,6 +749,30 @@ def run_core(args: argparse.Namespace) -> int:
             return written
 
         doc["plots"] = [str(p) for p in drawn(draw)]
+    _write_json(args.json, doc)
+    return 0
+
+
+# ----------------------------------------------------------------------------- worker
+def run_worker(args: argparse.Namespace) -> int:
+    from simpletrack.bench.stats import machine
+    from simpletrack.bench.worker import WorkerOptions, run_worker_bench, worker_table
+
+    data = None
+    if args.source == "nuscenes":
+        data = _data(args.data, "or --source synthetic")
+        if not (data / "nuscenes" / "centerpoint_val").is_dir():
+            raise UserError(f"no nuScenes detections under {data / 'nuscenes'}: give --data")
+    try:
+        opts = WorkerOptions(
+            args.sensors, args.frames, args.warmup, args.source, data, args.synthetic_boxes
+        )
+    except ValueError as exc:
+        raise UserError(f"bench worker: {exc}") from None
+    _out_paths(argparse.Namespace(json=args.json, plot_dir=None))
+    before = machine()
+    doc = _report("worker", before, run_worker_bench(opts, progress=_progress))
+    print(worker_table(doc))
     _write_json(args.json, doc)
     return 0
 
