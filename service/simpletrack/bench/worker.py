@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +30,9 @@ from simpletrack.bench import loadgen
 from simpletrack.bench.stages import StageTimer
 from simpletrack.datasets.nuscenes import scene_files
 from simpletrack.spawn import free_port
+
+if TYPE_CHECKING:  # the server is imported when a run starts, not with the CLI
+    from simpletrack.server.worker import Worker
 
 # (stage, module, attribute path): the order a frame goes through the worker.
 STAGES: tuple[tuple[str, str, str], ...] = (
@@ -136,21 +139,12 @@ class _Feeder:
         return self._inbound(key, payload, time.time_ns(), time.perf_counter())
 
 
-def _handle(worker: Any, item: Any) -> None:
-    """What the worker thread does with a queued frame (Worker.run), on this thread."""
-    with worker.lock:
-        worker._beat()
-        worker._process(item)
-        if time.monotonic() >= worker._next_housekeeping:
-            worker._housekeeping()
-
-
-def _pass(worker: Any, feeder: _Feeder, frames: int, cpu: list[int] | None) -> None:
+def _pass(worker: Worker, feeder: _Feeder, frames: int, cpu: list[int] | None) -> None:
     for _ in range(frames):
         for key, payload in feeder.round():
             item = feeder.item(key, payload)
             t0 = time.thread_time_ns()
-            _handle(worker, item)
+            worker.handle(item)  # what the worker thread does with a queued frame
             if cpu is not None:
                 cpu.append(time.thread_time_ns() - t0)
 
@@ -177,10 +171,9 @@ def run_worker_bench(
         shimmed: list[int] = []
         with timer:
             _pass(worker, feeder, opts.frames, shimmed)
-        published = timer.calls["put"]
     finally:
         service.shutdown()
-    return worker_figures(opts, boxes, cpu, shimmed, timer, published)
+    return worker_figures(opts, boxes, cpu, shimmed, timer)
 
 
 def worker_figures(
@@ -189,7 +182,6 @@ def worker_figures(
     cpu: Sequence[int],
     shimmed: Sequence[int],
     timer: StageTimer,
-    published: int,
 ) -> dict[str, Any]:
     frames = len(shimmed)
     stages_us = {s: timer.seconds[s] * 1e6 / frames for s in timer.seconds}
@@ -209,7 +201,7 @@ def worker_figures(
         "shimmed_mean_us": round(shimmed_mean_us, 1),
         "stages_us_per_frame": {s: round(v, 1) for s, v in stages_us.items()},
         "calls_per_frame": {s: round(n / frames, 2) for s, n in timer.calls.items()},
-        "published": published,
+        "published": timer.calls["put"],  # each frame answered on its tracks key
         "shimmed_frames": frames,
     }
 

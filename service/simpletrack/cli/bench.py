@@ -758,11 +758,7 @@ def run_worker(args: argparse.Namespace) -> int:
     from simpletrack.bench.stats import machine
     from simpletrack.bench.worker import WorkerOptions, run_worker_bench, worker_table
 
-    data = None
-    if args.source == "nuscenes":
-        data = _data(args.data, "or --source synthetic")
-        if not (data / "nuscenes" / "centerpoint_val").is_dir():
-            raise UserError(f"no nuScenes detections under {data / 'nuscenes'}: give --data")
+    data = _scenes_data(args.data) if args.source == "nuscenes" else None
     try:
         opts = WorkerOptions(
             args.sensors, args.frames, args.warmup, args.source, data, args.synthetic_boxes
@@ -791,13 +787,21 @@ def _check_load(args: argparse.Namespace) -> Path:
         raise UserError(f"--synthetic-boxes {args.synthetic_boxes} must be in 1..10000")
     if args.source != "nuscenes":
         return Path()  # synthetic frames: no data read
-    args.data = _data(args.data, "or --source synthetic")
+    args.data = _scenes_data(args.data)
     scenes: Path = args.data / "nuscenes" / "centerpoint_val"
+    return scenes
+
+
+def _scenes_data(given: Path | None) -> Path:
+    """The datasets' folder of a run on real nuScenes frames (--source nuscenes), checked to
+    hold the val scenes."""
+    data = _data(given, "or --source synthetic")
+    scenes = data / "nuscenes" / "centerpoint_val"
     if not scenes.is_dir():
         raise UserError(
             f"no nuScenes detections under {scenes}: give --data, or --source synthetic"
         )
-    return scenes
+    return data
 
 
 def run_service(args: argparse.Namespace) -> int:

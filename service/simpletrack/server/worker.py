@@ -228,6 +228,29 @@ class Worker(threading.Thread):
             return HOUSEKEEPING_S
         return min(HOUSEKEEPING_S, max(0.0, due - time.monotonic()) + 0.001)
 
+    def handle(self, item: Inbound | Dropped | Callable[[], None] | None) -> float | None:
+        """One turn of the loop: the item taken from the queue (None: none came in time), then
+        what is due. Returns when a fused vehicle's next frame is due (core/reorder.py)."""
+        with self.lock:
+            # Before the item: a process stopped past the lease finds itself fenced before it
+            # tracks (or publishes) anything from its stale state.
+            self._beat()
+            if isinstance(item, Inbound):
+                if item.kind is Kind.CHECKPOINT:
+                    self._carry(self.custody.on_checkpoint(item))
+                elif self.drain_deadline is not None and time.monotonic() > self.drain_deadline:
+                    self._drop(item, ErrorReason.DROPPED_SHUTDOWN)
+                else:
+                    self._process(item)
+            elif isinstance(item, Dropped):
+                self._announce(item)
+            elif item is not None:
+                item()
+            due = self.fused.release_due()
+            if time.monotonic() >= self._next_housekeeping:
+                self._housekeeping()
+            return due
+
     def run(self) -> None:
         due: float | None = None  # read under the lock, where the vehicles' buffers change
         while True:
@@ -235,27 +258,7 @@ class Worker(threading.Thread):
             if item is None and self.queue.closed:
                 break
             try:
-                with self.lock:
-                    # Before the item: a process stopped past the lease finds itself fenced
-                    # before it tracks (or publishes) anything from its stale state.
-                    self._beat()
-                    if isinstance(item, Inbound):
-                        if item.kind is Kind.CHECKPOINT:
-                            self._carry(self.custody.on_checkpoint(item))
-                        elif (
-                            self.drain_deadline is not None
-                            and time.monotonic() > self.drain_deadline
-                        ):
-                            self._drop(item, ErrorReason.DROPPED_SHUTDOWN)
-                        else:
-                            self._process(item)
-                    elif isinstance(item, Dropped):
-                        self._announce(item)
-                    elif item is not None:
-                        item()
-                    due = self.fused.release_due()
-                    if time.monotonic() >= self._next_housekeeping:
-                        self._housekeeping()
+                due = self.handle(item)
             except Exception:  # never let one frame kill the thread of many sensors
                 log.error("worker_error", exc=True, worker=self.index)
         self._settle_pending()
