@@ -21,16 +21,17 @@ from simpletrack.wire import (
     WireTrackState,
     decode_detection_frame,
     encode_detection_frame,
+    encode_track_frame,
 )
 from simpletrack.wire.codec import Rejection
 from simpletrack.wire.convert import (
     boxes_from_wire,
     boxes_to_wire,
     frame_from_wire,
+    pack_tracks_checked,
     track_boxes_from_wire,
     tracks_from_wire,
     tracks_to_wire,
-    tracks_to_wire_checked,
     wire_states,
 )
 from simpletrack.wire.reasons import ErrorReason
@@ -294,33 +295,95 @@ def poisoned(tracks: Tracks, rng: np.random.Generator) -> Tracks:
     return dataclasses.replace(tracks, boxes=boxes, velocity=velocity, covariance=cov, age_s=age_s)
 
 
+HEADER: dict[str, Any] = {
+    "vehicle": "v7",
+    "sensor": "lidar_top",
+    "seq": 2**40,
+    "stamp_ns": 1_700_000_000_123_456_789,
+    "frame_id": "map",
+    "key_frame": False,
+    "instance": "tracker-0",
+    "received_ns": 1_700_000_000_200_000_000,
+    "published_ns": 1_700_000_000_210_000_000,
+}
+
+
 @pytest.mark.parametrize("covariance", [True, False])
-def test_the_compiled_conversion_is_the_numpy_one_with_the_guards_finding(
+def test_the_packed_tracks_are_the_encoders_bytes_with_the_guards_finding(
     covariance: bool,
 ) -> None:
-    """tracks_to_wire_checked (one compiled call) gives tracks_to_wire's columns, byte for
-    byte, and the finite guard's first non-finite (column, row): on ordinary tracks, on none,
+    """pack_tracks_checked (one compiled call) gives the bytes encode_track_frame writes for
+    tracks_to_wire's columns, for each version and epoch, and the finite guard's first
+    non-finite (column, row): on ordinary tracks, on none, at every msgpack size boundary
+    of the count and the columns (fixint/uint8/uint16, bin8/16/32), with long class tables,
     and on tracks with NaN, inf or values past float32 anywhere in their float columns."""
     if not jit.compiled():
-        assert tracks_to_wire_checked(three_tracks(), 0, CLASSES) is None
+        assert pack_tracks_checked(three_tracks(), 0, CLASSES, 3) is None
         pytest.skip("kernels run uncompiled: the service takes tracks_to_wire then")
     rng = np.random.default_rng(5)
-    cases = [random_tracks(n, covariance, n) for n in (0, 1, 7, 140)]
-    cases += [poisoned(random_tracks(30, covariance, k), rng) for k in range(200)]
+    many = tuple(f"class_{k}_{'x' * k}" for k in range(40))  # array16, str8 names
+    cases = [(random_tracks(n, covariance, n), CLASSES) for n in (0, 1, 7, 127, 128, 140)]
+    cases += [(random_tracks(n, covariance, n), many) for n in (255, 256, 3200)]
+    cases += [(poisoned(random_tracks(30, covariance, k), rng), CLASSES) for k in range(200)]
     found = 0
-    for tracks in cases:
+    for k, (tracks, classes) in enumerate(cases):
         with np.errstate(all="ignore"):  # the numpy path's casts overflow where poisoned
-            want = tracks_to_wire(tracks, 1000, CLASSES)
-        checked = tracks_to_wire_checked(tracks, 1000, CLASSES)
-        assert checked is not None
-        got, bad = checked
-        assert_identical(got, want)
-        assert all(
-            getattr(got, f.name).flags.c_contiguous
-            for f in dataclasses.fields(got)
-            if isinstance(getattr(got, f.name), np.ndarray)
-        )
-        assert bad == first_non_finite(want)
+            want = tracks_to_wire(tracks, 1000, classes)
+        bad = first_non_finite(want)
         found += bad is not None
+        for version in (1, 2, 3):
+            checked = pack_tracks_checked(tracks, 1000, classes, version)
+            assert checked is not None
+            packed, got_bad = checked
+            assert got_bad == bad
+            if bad is not None:
+                assert packed == b""
+                continue
+            epoch = None if k % 2 else k
+            pose = None if k % 3 else [float(v) for v in range(16)]
+            expected = encode_track_frame(
+                **HEADER, pose=pose, tracks=want, schema_version=version, epoch=epoch
+            )
+            got = encode_track_frame(
+                **HEADER, pose=pose, tracks=packed, schema_version=version, epoch=epoch
+            )
+            assert got == expected, (len(tracks.ids), version, epoch)
     assert found > 100  # most poisoned ones are refused (not: values rounding into range, a
     # covariance entry below the diagonal)
+
+
+def test_packed_tracks_need_a_version() -> None:
+    """The encoder cannot tell which columns packed bytes carry: it wants the version."""
+    if not jit.compiled():
+        pytest.skip("kernels run uncompiled")
+    tracks = random_tracks(3, True, 3)
+    checked = pack_tracks_checked(tracks, 0, CLASSES, 3)
+    assert checked is not None
+    for version in (None, 4):
+        with pytest.raises(ValueError, match="packed tracks need a TrackFrame schema_version"):
+            encode_track_frame(**HEADER, pose=None, tracks=checked[0], schema_version=version)
+    assert pack_tracks_checked(tracks, 0, CLASSES, 4) is None
+
+
+def test_the_packing_kernel_runs_the_same_as_python() -> None:
+    """The kernel's own Python function (what it runs without numba) writes the same bytes."""
+    from simpletrack.core.packing_kernels import pack_columns
+    from simpletrack.wire import convert
+
+    for n, cov in ((0, True), (5, False), (300, True)):
+        t = random_tracks(n, cov, n)
+        b = t.boxes
+        args = (
+            t.ids, 1000, b.params, b.score, b.cls, t.velocity, t.state, t.time_since_update,
+            t.hits, t.age, convert._NO_COVARIANCE if t.covariance is None else t.covariance,
+            cov, t.age_s, t.time_since_update_s, convert._classes_entry(CLASSES),
+            convert._KEYS, convert._KEY_AT, convert._INCLUDE[3, cov],
+        )  # fmt: skip
+        plain, column, row = pack_columns.py(*args)
+        assert (column, row) == (-1, -1)
+        if jit.compiled():
+            compiled = pack_columns(*args)
+            assert compiled[0].tobytes() == plain.tobytes()
+        want = tracks_to_wire(t, 1000, CLASSES)
+        frame = encode_track_frame(**HEADER, pose=None, tracks=want, schema_version=3)
+        assert plain.tobytes() in frame

@@ -452,7 +452,7 @@ def encode_track_frame(
     instance: str,
     received_ns: int,
     published_ns: int,
-    tracks: TrackArrays,
+    tracks: TrackArrays | bytes,
     schema_version: int | None = None,
     epoch: int | None = None,
 ) -> bytes:
@@ -460,16 +460,38 @@ def encode_track_frame(
     added, for fleets with readers of that version: 1 version 2's columns, 1 and 2 the
     ``epoch``. None: the newest version the arguments fill (3 with ages in seconds and an
     epoch, 2 with ages only, else 1: what a caller of before each version gets). ``epoch``
-    None leaves the key out. ValueError for a bad version or epoch, a column of the wrong
-    shape, or a frame of version 2 or 3 without ages in seconds."""
+    None leaves the key out. ``tracks`` as bytes is the ``tracks`` map packed already
+    (convert.py ``pack_tracks_checked``, for this ``schema_version``, which must be given).
+    ValueError for a bad version or epoch, a column of the wrong shape, or a frame of
+    version 2 or 3 without ages in seconds."""
     check_epoch(epoch)
-    if schema_version is None:
+    if isinstance(tracks, bytes):
+        if schema_version not in TRACK_COLUMNS_OF:
+            raise ValueError(
+                f"packed tracks need a TrackFrame schema_version of 1, 2 or 3, not {schema_version!r}"
+            )
+    elif schema_version is None:
         has_ages = tracks.age_s is not None and tracks.time_since_update_s is not None
         schema_version = 1
         if has_ages:
             schema_version = TRACK_SCHEMA_VERSION if epoch is None else TRACK_EPOCH_SCHEMA_VERSION
     if schema_version not in TRACK_COLUMNS_OF:
         raise ValueError(f"TrackFrame schema_version {schema_version!r} is not one of 1, 2, 3")
+    msg: dict[str, Any] = {
+        "schema_version": schema_version,
+        "vehicle": vehicle,
+        "sensor": sensor,
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "frame_id": frame_id,
+        "pose": pose,
+        "key_frame": key_frame,
+        "instance": instance,
+        "received_ns": received_ns,
+        "published_ns": published_ns,
+    }
+    if isinstance(tracks, bytes):
+        return _packed_track_frame(msg, tracks, epoch)
     columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
     for spec, dtype in _TRACK_DTYPES[schema_version]:
         values = getattr(tracks, spec.name)
@@ -492,23 +514,23 @@ def encode_track_frame(
             columns[spec.name] = values.tobytes()
         else:
             columns[spec.name] = to_column(values, spec)
-    msg: dict[str, Any] = {
-        "schema_version": schema_version,
-        "vehicle": vehicle,
-        "sensor": sensor,
-        "seq": seq,
-        "stamp_ns": stamp_ns,
-        "frame_id": frame_id,
-        "pose": pose,
-        "key_frame": key_frame,
-        "instance": instance,
-        "received_ns": received_ns,
-        "published_ns": published_ns,
-        "tracks": columns,
-    }
+    msg["tracks"] = columns
     if epoch is not None and schema_version >= TRACK_EPOCH_SCHEMA_VERSION:
         msg["epoch"] = epoch
     return pack(msg)
+
+
+def _packed_track_frame(header: dict[str, Any], tracks: bytes, epoch: int | None) -> bytes:
+    """A TrackFrame whose ``tracks`` map is packed already: ``header`` (its 11 entries before
+    ``tracks``, a fixmap) packed around it; the bytes msgpack writes for the whole map."""
+    head = pack(header)
+    if epoch is not None and header["schema_version"] >= TRACK_EPOCH_SCHEMA_VERSION:
+        return b"".join((_FIXMAP_13, head[1:], _TRACKS_KEY, tracks, _EPOCH_KEY, pack(epoch)))
+    return b"".join((_FIXMAP_12, head[1:], _TRACKS_KEY, tracks))
+
+
+_FIXMAP_12, _FIXMAP_13 = bytes([0x80 | 12]), bytes([0x80 | 13])
+_TRACKS_KEY, _EPOCH_KEY = pack("tracks"), pack("epoch")
 
 
 # Each TrackFrame version's columns with their numpy dtypes, worked out once.

@@ -12,22 +12,28 @@ and ``size`` columns and float64 scores. Class codes index a table of names on b
 
 from __future__ import annotations
 
+import functools
+import sys
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import msgpack
 import numpy as np
+import numpy.typing as npt
 
 from simpletrack.core import jit
 from simpletrack.core.boxes import CENTER, SIZE, YAW, Boxes
 from simpletrack.core.frames import Frame, Tracks
 from simpletrack.core.lifecycle import TrackState, UpdateKind
-from simpletrack.core.output_kernels import NON_FINITE_ORDER, track_columns
+from simpletrack.core.output_kernels import NON_FINITE_ORDER
+from simpletrack.core.packing_kernels import COLUMN_ORDER, pack_columns
 from simpletrack.wire.columns import (
     F32,
     F64,
     I32,
     I64,
+    TRACK_COLUMNS_OF,
     BoxArrays,
     TrackArrays,
     covariance_from_upper,
@@ -46,10 +52,10 @@ __all__ = [
     "boxes_from_wire",
     "boxes_to_wire",
     "frame_from_wire",
+    "pack_tracks_checked",
     "track_boxes_from_wire",
     "tracks_from_wire",
     "tracks_to_wire",
-    "tracks_to_wire_checked",
     "vehicle_tracks_to_wire",
     "wire_states",
 ]
@@ -127,33 +133,61 @@ _NO_COVARIANCE = np.zeros((0, 6, 6))
 _compiled: bool | None = None  # whether kernels run compiled (asked once)
 
 
-def tracks_to_wire_checked(
-    tracks: Tracks, id_base: int, classes: tuple[str, ...]
-) -> tuple[TrackArrays, tuple[str, int] | None] | None:
-    """``tracks_to_wire`` in one compiled call (core/output_kernels.py), with the first
-    float column holding NaN or inf and its row (None: every value finite), in the order
-    the finite guard reads them (server/finite.py). None when kernels run uncompiled or the
-    tracks lack ages in seconds: then ``tracks_to_wire`` and the guard's own look."""
+def pack_tracks_checked(
+    tracks: Tracks, id_base: int, classes: tuple[str, ...], schema_version: int
+) -> tuple[bytes, tuple[str, int] | None] | None:
+    """The ``tracks`` map of a TrackFrame of ``schema_version`` as msgpack bytes, in one
+    compiled call (core/packing_kernels.py): what ``encode_track_frame`` writes for
+    ``tracks_to_wire``'s columns, byte for byte, with the guard's look; or (b"", the first
+    non-finite (column, row)). None when kernels run uncompiled, the tracks lack ages in
+    seconds, for a version it does not know, or on a big-endian machine (the wire is
+    little-endian): then the columns' way (``tracks_to_wire``)."""
     global _compiled
     if _compiled is None:
         _compiled = jit.compiled()
-    if not _compiled or tracks.age_s is None or tracks.time_since_update_s is None:
+    if (
+        not _compiled
+        or tracks.age_s is None
+        or tracks.time_since_update_s is None
+        or schema_version not in TRACK_COLUMNS_OF
+        or sys.byteorder != "little"
+    ):
         return None
     boxes, cov = tracks.boxes, tracks.covariance
-    (
-        ids, cls, center, size, yaw, score, velocity, state, hits, age, tsu, upper, age_s,
-        tsu_s, column, row,
-    ) = track_columns(
+    packed, column, row = pack_columns(
         tracks.ids, id_base, boxes.params, boxes.score, boxes.cls, tracks.velocity,
         tracks.state, tracks.time_since_update, tracks.hits, tracks.age,
         _NO_COVARIANCE if cov is None else cov, cov is not None,
         tracks.age_s, tracks.time_since_update_s,
+        _classes_entry(classes), _KEYS, _KEY_AT, _INCLUDE[schema_version, cov is not None],
     )  # fmt: skip
-    wire = TrackArrays(
-        classes, ids, cls, center, size, yaw, score, velocity, state, hits, age, tsu,
-        None if cov is None else upper, age_s, tsu_s,
-    )  # fmt: skip
-    return wire, (None if column < 0 else (NON_FINITE_ORDER[column], row))
+    if column >= 0:
+        return b"", (NON_FINITE_ORDER[column], row)
+    return packed.tobytes(), None
+
+
+@functools.lru_cache(maxsize=64)
+def _classes_entry(classes: tuple[str, ...]) -> npt.NDArray[np.uint8]:
+    """The ``classes`` key and list, packed (a tracker's classes are fixed: packed once)."""
+    packed = msgpack.packb("classes") + msgpack.packb(list(classes), use_bin_type=True)
+    return np.frombuffer(packed, np.uint8).copy()  # writable: the kernel's type
+
+
+_PACKED_KEYS = [msgpack.packb(name) for name in COLUMN_ORDER]
+_KEYS = np.frombuffer(b"".join(_PACKED_KEYS), np.uint8).copy()
+_KEY_AT = np.cumsum([0] + [len(k) for k in _PACKED_KEYS], dtype=np.int64)
+# Which columns a message carries, by (version, covariance or not): those of the version's
+# table, the optional covariance only where there is one.
+_INCLUDE = {
+    (version, has_cov): np.array(
+        [
+            any(c.name == name for c in specs) and (name != "covariance" or has_cov)
+            for name in COLUMN_ORDER
+        ]
+    )
+    for version, specs in TRACK_COLUMNS_OF.items()
+    for has_cov in (False, True)
+}
 
 
 def vehicle_tracks_to_wire(

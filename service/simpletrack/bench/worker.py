@@ -44,7 +44,7 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("order", "simpletrack.server.sensors", "SensorState.keep_undo"),
     ("to_core", "simpletrack.server.worker", "frame_from_wire"),
     ("step", "simpletrack.core.tracker", "Tracker.step"),
-    ("to_wire", "simpletrack.server.worker", "tracks_to_wire_checked"),
+    ("to_wire", "simpletrack.server.worker", "pack_tracks_checked"),
     ("encode", "simpletrack.server.worker", "encode_track_frame"),
     ("put", "simpletrack.server.outbox", "Outbox.tracks"),
     ("metrics", "prometheus_client.metrics", "Histogram.observe"),

@@ -64,6 +64,7 @@ _KERNEL_MODULES = (
     "simpletrack.core.step_kernels",
     "simpletrack.core.calibration_kernels",
     "simpletrack.core.output_kernels",
+    "simpletrack.core.packing_kernels",
 )
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"

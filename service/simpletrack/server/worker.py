@@ -84,7 +84,7 @@ from simpletrack.wire.codec import (
     encode_track_frame,
 )
 from simpletrack.wire.columns import TrackArrays
-from simpletrack.wire.convert import frame_from_wire, tracks_to_wire, tracks_to_wire_checked
+from simpletrack.wire.convert import frame_from_wire, pack_tracks_checked, tracks_to_wire
 from simpletrack.wire.header import peek_header, restamp_tracks
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
@@ -641,6 +641,7 @@ class Worker(threading.Thread):
             tframe = replace(tframe, after_gap=True)
         if ignored:
             m.boxes_ignored.inc(ignored)
+        version = ctx.settings.tracks_schema_version
         fp = FloatingPointErrors()
         failed: str | None = None
         with fp:  # one block for the step and the conversion (each entry costs numpy calls)
@@ -651,25 +652,26 @@ class Worker(threading.Thread):
                 failed = f"tracker: {e}"[:300]
             else:
                 t2 = time.perf_counter()
-                # One compiled call with the finite guard's look (None: uncompiled kernels).
-                # A frame it finds NaN or inf in goes the numpy way again: its casts raise
-                # the floating-point errors the event log has always named.
-                checked = tracks_to_wire_checked(tracks, state.id_base, ctx.classes)
-                bad: tuple[str, int] | bool | None = True
-                if checked is None or checked[1] is not None:
-                    wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
+                # The message's tracks map in one compiled call, with the finite guard's look
+                # (None: uncompiled kernels). A frame it finds NaN or inf in goes the numpy
+                # way: its casts raise the floating-point errors the event log has always
+                # named, and the guard names the column.
+                packed = pack_tracks_checked(tracks, state.id_base, ctx.classes, version)
+                wire: TrackArrays | None = None
+                body: TrackArrays | bytes
+                if packed is None or packed[1] is not None:
+                    body = wire = tracks_to_wire(tracks, state.id_base, ctx.classes)
                 else:
-                    wire, bad = checked
+                    body = packed[0]
         if failed is not None:
             state.before = None  # what keep_undo holds is no longer the state before the last
             r = Rejection(ErrorReason.INTERNAL_ERROR, None, failed, seq, stamp_ns)
             self._refuse(item, vehicle, sensor, r)
             return
         m.stages["track"].observe(t2 - t1)
-        if not self._publishable(item, state, wire, fp, seq, stamp_ns, bad):
+        if not self._publishable(item, state, wire, fp, seq, stamp_ns):
             return
         self.sensors.reserve_ids(state)  # durable before any of the frame's ids leaves
-        version = ctx.settings.tracks_schema_version
         payload = encode_track_frame(
             vehicle=vehicle,
             sensor=sensor,
@@ -681,7 +683,7 @@ class Worker(threading.Thread):
             instance=ctx.settings.instance,
             received_ns=item.received_ns,
             published_ns=time.time_ns(),
-            tracks=wire,
+            tracks=body,
             schema_version=version,
             epoch=state.epoch if version >= TRACK_EPOCH_SCHEMA_VERSION else None,
         )
@@ -693,7 +695,7 @@ class Worker(threading.Thread):
         m.observe_end_to_end(stamp_ns, item.received_ns, now_ns, vehicle)
         m.service_latency.observe((now_ns - item.received_ns) * 1e-9)
         m.count_tracked(vehicle)
-        m.active_tracks.inc(state.tracked(arrival, len(wire)))
+        m.active_tracks.inc(state.tracked(arrival, len(tracks.ids)))
         if log.enabled(logging.DEBUG):  # not even the fields' cost otherwise
             log.debug(
                 "frame_tracked",
@@ -701,7 +703,7 @@ class Worker(threading.Thread):
                 sensor=sensor,
                 seq=seq,
                 boxes=len(decoded.boxes),
-                tracks=len(wire),
+                tracks=len(tracks.ids),
                 ms=round((t3 - t0) * 1e3, 3),
             )
 
@@ -778,22 +780,21 @@ class Worker(threading.Thread):
         self,
         item: Inbound,
         s: SensorState,
-        wire: TrackArrays,
+        wire: TrackArrays | None,
         fp: FloatingPointErrors,
         seq: int,
         stamp_ns: int,
-        bad: tuple[str, int] | bool | None = True,
     ) -> bool:
         """The guard before publishing (docs/SERVICE.md, "What a fault can cost"): numpy's
         floating-point errors go to the log; a frame with NaN or inf is never published, and
         the tracker whose state produced it is reset (ids continue above the old ones).
-        ``bad``: the first non-finite value's (column, row) if already looked for
-        (finite.non_finite_refusal)."""
+        ``wire``: the columns, where the packing kernel found NaN or inf or did not run (None:
+        it looked, and every value is finite)."""
         if fp.kinds:
             log.warning(
                 "numeric_warning", vehicle=s.vehicle, sensor=s.sensor, seq=seq, kinds=fp.kinds
             )
-        r = non_finite_refusal(wire, seq, stamp_ns, bad)
+        r = None if wire is None else non_finite_refusal(wire, seq, stamp_ns)
         if r is None:
             return True
         dropped_tracks = s.active_tracks
