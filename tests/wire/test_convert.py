@@ -152,6 +152,37 @@ def test_frame_from_wire_gives_the_recorded_frame_and_counts_the_ignored_box() -
     assert_identical(frame, RECORDED_FRAME)
 
 
+@pytest.mark.parametrize("velocity", [False, True])
+def test_the_compiled_rows_are_the_numpy_ones(
+    velocity: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """frame_from_wire's one compiled call (core/input_kernels.py detection_rows) gives the
+    numpy path's frame: the same rows, values, dtypes and ignored count, with ignored
+    classes anywhere, none, all, and no boxes."""
+    from simpletrack.wire import convert
+
+    if not jit.compiled():
+        pytest.skip("kernels run uncompiled: frame_from_wire takes the numpy path then")
+    rng = np.random.default_rng(11)
+    cases = [(n, rng.integers(-1, len(CLASSES), n).astype(I32)) for n in (0, 1, 9, 300)]
+    cases += [(5, np.full(5, -1, I32)), (5, np.zeros(5, I32))]
+    for n, codes in cases:
+        w = boxes_to_wire(random_boxes(n, velocity), CLASSES)
+        payload = encode_detection_frame(
+            vehicle="v", sensor="s", seq=1, stamp_ns=1, frame_id="f", boxes=w
+        )
+        decoded = decode_detection_frame(payload)
+        assert isinstance(decoded, DecodedDetections)
+        decoded = dataclasses.replace(decoded, codes=codes)
+        got = frame_from_wire(decoded, 2.5)
+        with monkeypatch.context() as m:
+            m.setattr(convert, "_compiled", False)
+            want = frame_from_wire(decoded, 2.5)
+        assert got[1] == want[1] == int((codes < 0).sum())
+        assert_identical(got[0], want[0])
+        assert got[0].boxes.params.flags.c_contiguous
+
+
 # The service's own copies, until pool.py calls the adapter; then delete these two tests.
 def test_boxes_to_wire_splits_the_core_row_into_centre_yaw_and_size() -> None:
     boxes = Boxes.from_arrays([[1, 2, 3, 0.5, 4, 5, 6]], [0.75], [1], [[7, 8]])

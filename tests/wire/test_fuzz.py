@@ -9,6 +9,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from simpletrack.core import jit
 from simpletrack.wire import (
     BoxArrays,
     DecodedDetections,
@@ -21,6 +22,7 @@ from simpletrack.wire import (
     encode_detection_frame,
     generate,
 )
+from simpletrack.wire.convert import detection_extents
 
 CODES = {"Car": 0, "Pedestrian": 1}
 LIMITS = DecodeLimits(max_bytes=1 << 16, max_boxes=64)
@@ -58,12 +60,29 @@ def check(data: bytes) -> None:
     if isinstance(out, Rejection):
         assert isinstance(out.reason, ErrorReason)
         assert out.reason is not ErrorReason.INTERNAL_ERROR, out.detail
+    assert_same(decode_detection_frame(data, LIMITS, CODES, detection_extents), out)
     tracks = decode_track_frame(data, LIMITS)
     if isinstance(tracks, Rejection):
         assert tracks.reason is not ErrorReason.INTERNAL_ERROR, tracks.detail
     fused = decode_vehicle_track_frame(data, LIMITS)
     if isinstance(fused, Rejection):
         assert fused.reason is not ErrorReason.INTERNAL_ERROR, fused.detail
+
+
+def assert_same(got: DecodedDetections | Rejection, want: DecodedDetections | Rejection) -> None:
+    """The service's decoding (its columns' extents from the compiled reduction) is the
+    plain decoder's: the same refusal, or the same frame, columns, extents and codes."""
+    if isinstance(want, Rejection):
+        assert got == want
+        return
+    assert isinstance(got, DecodedDetections)
+    assert (got.frame, got.extents) == (want.frame, want.extents)
+    assert got.boxes.classes == want.boxes.classes
+    for name in ("class_index", "center", "size", "yaw", "score", "velocity"):
+        g, w = getattr(got.boxes, name), getattr(want.boxes, name)
+        assert (g is None and w is None) or (g.tobytes(), g.shape) == (w.tobytes(), w.shape)
+    for g, w in ((got.pose, want.pose), (got.extrinsic, want.extrinsic), (got.codes, want.codes)):
+        assert (g is None and w is None) or np.array_equal(g, w)
 
 
 msgpack_values = st.recursive(
@@ -168,10 +187,17 @@ def test_bytes_flipped_inserted_or_cut(data: st.DataObject) -> None:
 @given(
     st.integers(0, 8),
     st.lists(st.floats(width=32, allow_nan=True, allow_infinity=True), min_size=24, max_size=24),
-    st.lists(st.integers(-3, 4), min_size=8, max_size=8),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=8, max_size=8),
+    st.lists(st.integers(-2, 3), min_size=8, max_size=8),
+    st.booleans(),
 )
-def test_column_contents(n: int, floats: list[float], index: list[int]) -> None:
-    """Well-formed maps with arbitrary column values: finite/size/index rules decide."""
+def test_column_contents(
+    n: int, floats: list[float], scores: list[float], index: list[int], velocity: bool
+) -> None:
+    """Well-formed maps with arbitrary column values (NaN, inf, zeros of both signs, sizes
+    not positive, indices out of the table, with and without velocity): the finite, size and
+    index rules decide, and the decoder given the compiled reduction refuses or accepts
+    each frame as the plain one does, with the same extents."""
     f = np.array(floats, np.float32)
     obj = msgpack.unpackb(VALID, raw=False)
     b = obj["boxes"]
@@ -179,12 +205,24 @@ def test_column_contents(n: int, floats: list[float], index: list[int]) -> None:
     b["class_index"] = np.array(index[:n], np.int32).tobytes()
     b["center"] = f[: 3 * n].tobytes()
     b["size"] = f[-3 * n :].tobytes() if n else b""
-    b["yaw"] = f[:n].tobytes()
-    b["score"] = f[:n].tobytes()
-    b["velocity"] = f[: 2 * n].tobytes()
+    b["yaw"] = f[n : 2 * n].tobytes()
+    b["score"] = np.array(scores[:n], np.float64).tobytes()
+    if velocity:
+        b["velocity"] = f[5 : 5 + 2 * n].tobytes()
+    else:
+        del b["velocity"]
     data = msgpack.packb(obj, use_bin_type=True)
+    calls: list[bool] = []
+
+    def counted(*columns: Any) -> Any:
+        found = detection_extents(*columns)
+        calls.append(found is not None)
+        return found
+
     check(data)
-    out = decode_detection_frame(data, LIMITS, CODES)
-    if isinstance(out, DecodedDetections):
-        assert np.isfinite(out.boxes.center).all() and (out.boxes.size > 0).all()
-        assert ((out.boxes.class_index >= 0) & (out.boxes.class_index < 2)).all()
+    want = decode_detection_frame(data, LIMITS, CODES)
+    assert_same(decode_detection_frame(data, LIMITS, CODES, counted), want)
+    assert calls == ([jit.compiled()] if n else [])  # it ran whatever the values
+    if isinstance(want, DecodedDetections):
+        assert np.isfinite(want.boxes.center).all() and (want.boxes.size > 0).all()
+        assert ((want.boxes.class_index >= 0) & (want.boxes.class_index < 2)).all()

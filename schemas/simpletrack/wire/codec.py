@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import re
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, TypeVar, cast
 
@@ -70,6 +70,7 @@ from simpletrack.wire.reasons import (
 )
 
 M = TypeVar("M")
+F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
@@ -292,26 +293,41 @@ def _class_codes(boxes: BoxArrays, class_codes: Mapping[str, int]) -> I32:
     return codes
 
 
+# The least and greatest of a frame's centre, size, yaw, score, velocity (None when not sent)
+# and class index columns, in one call: a (6, 2) array, or None to reduce them one by one (the
+# service's compiled reduction: wire/convert.py detection_extents).
+ExtentsOf = Callable[[F32, F32, F32, F64, F32 | None, I32], F64 | None]
+
+
 def decode_detection_frame(
     payload: bytes,
     limits: DecodeLimits = DEFAULT_LIMITS,
     class_codes: Mapping[str, int] | None = None,
+    extents_of: ExtentsOf | None = None,
 ) -> DecodedDetections | Rejection:
     """Decode and validate a ``DetectionFrame`` (version 1 or 2). ``class_codes`` maps class
     names to the caller's codes (-1 = known but ignored); a box of any other class is
-    ``unknown_class``."""
+    ``unknown_class``. ``extents_of`` reduces the columns in one call; a frame whose columns
+    it finds anything wrong with is judged column by column (the same refusals either way)."""
     obj: dict[str, Any] = {}
     try:
         obj = unpack(payload, limits)
         version = check_version(obj, DETECTION_SCHEMA_VERSIONS)
         frame = validate(DETECTION_FRAMES[version], obj)
         extents: Extents = {}
-        cols = read_columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes, 0, extents)
+        judged = None
+        if extents_of is not None:
+            judged = _judged_columns(frame.boxes, limits.max_boxes, extents, extents_of)
+        index_extent: tuple[int, int] | None = None
+        if judged is None:
+            cols = read_columns(frame.boxes, _DETECTION_PLAN, "boxes", limits.max_boxes, 0, extents)
+        else:
+            cols, index_extent = judged
         boxes = BoxArrays(classes=tuple(frame.boxes.classes), **cols)
         n_classes = len(boxes.classes)
-        if len(boxes) and (
-            int(_least(boxes.class_index)) < 0 or int(_greatest(boxes.class_index)) >= n_classes
-        ):
+        if len(boxes) and index_extent is None:
+            index_extent = int(_least(boxes.class_index)), int(_greatest(boxes.class_index))
+        if index_extent is not None and (index_extent[0] < 0 or index_extent[1] >= n_classes):
             raise Reject(
                 ErrorReason.INVALID_VALUE,
                 "boxes.class_index",
@@ -329,6 +345,41 @@ def decode_detection_frame(
         return rejection(r, obj)
     except Exception as e:  # a bug in this module; the fuzz test asserts it never happens
         return internal_error(e)
+
+
+def _judged_columns(
+    model: Any, max_rows: int, extents: Extents, extents_of: ExtentsOf
+) -> tuple[dict[str, npt.NDArray[Any]], tuple[int, int]] | None:
+    """The columns of a frame of at least one box, with their extents from ``extents_of``
+    (into ``extents``) and the class indices' (least, greatest); None for anything else
+    (no rows, too many, a column's length, NaN or inf, no answer): ``read_columns`` then
+    says which check fails first."""
+    count = int(model.count)
+    if not 0 < count <= max_rows:
+        return None
+    cols: dict[str, npt.NDArray[Any]] = {}
+    for c in _DETECTION_PLAN:
+        buf = getattr(model, c.name)
+        if buf is None:
+            continue
+        if len(buf) != count * c.row_bytes:
+            return None
+        arr = np.frombuffer(buf, dtype=c.dtype)
+        cols[c.name] = arr.reshape(count, c.width) if c.width > 1 else arr
+    velocity = cols.get("velocity")
+    found = extents_of(
+        cols["center"], cols["size"], cols["yaw"], cols["score"], velocity, cols["class_index"]
+    )
+    if found is None:
+        return None
+    (c0, c1), (s0, s1), (y0, y1), (r0, r1), (v0, v1), (i0, i1) = found.tolist()
+    floats = [c0, c1, s0, s1, y0, y1, r0, r1] + ([] if velocity is None else [v0, v1])
+    if not all(map(math.isfinite, floats)):
+        return None
+    extents.update(center=(c0, c1), size=(s0, s1), yaw=(y0, y1), score=(r0, r1))
+    if velocity is not None:
+        extents["velocity"] = (v0, v1)
+    return cols, (int(i0), int(i1))
 
 
 def decode_track_frame(

@@ -25,6 +25,8 @@ import numpy.typing as npt
 from simpletrack.core import jit
 from simpletrack.core.boxes import CENTER, SIZE, YAW, Boxes
 from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.input_kernels import detection_extents as _detection_extents
+from simpletrack.core.input_kernels import detection_rows
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.output_kernels import NON_FINITE_ORDER
 from simpletrack.core.packing_kernels import COLUMN_ORDER, pack_columns
@@ -51,6 +53,7 @@ __all__ = [
     "Tracks",
     "boxes_from_wire",
     "boxes_to_wire",
+    "detection_extents",
     "frame_from_wire",
     "pack_tracks_checked",
     "track_boxes_from_wire",
@@ -131,6 +134,25 @@ def tracks_to_wire(tracks: Tracks, id_base: int, classes: tuple[str, ...]) -> Tr
 
 _NO_COVARIANCE = np.zeros((0, 6, 6))
 _compiled: bool | None = None  # whether kernels run compiled (asked once)
+
+
+def detection_extents(
+    center: F32, size: F32, yaw: F32, score: F64, velocity: F32 | None, class_index: I32
+) -> F64 | None:
+    """The decoder's reductions of a detection frame's columns in one compiled call
+    (core/input_kernels.py; ``decode_detection_frame``'s ``extents_of``); None when kernels
+    run uncompiled: the decoder then reduces them one by one."""
+    global _compiled
+    if _compiled is None:
+        _compiled = jit.compiled()
+    if not _compiled:
+        return None
+    return _detection_extents(
+        center, size, yaw, score, _NO_VELOCITY if velocity is None else velocity, class_index
+    )
+
+
+_NO_VELOCITY = np.zeros((0, 2), np.float32)
 
 
 def pack_tracks_checked(
@@ -225,6 +247,21 @@ def frame_from_wire(decoded: DecodedDetections, stamp: float) -> tuple[Frame, in
     arrays = decoded.boxes
     codes = arrays.class_index if decoded.codes is None else decoded.codes
     velocity = arrays.velocity
+    global _compiled
+    if _compiled is None:
+        _compiled = jit.compiled()
+    if _compiled:  # one compiled call for the rows the tracker takes (core/input_kernels.py)
+        params, score, cls, vel = detection_rows(
+            arrays.center,
+            arrays.yaw,
+            arrays.size,
+            arrays.score,
+            codes,
+            _NO_VELOCITY if velocity is None else velocity,
+        )
+        boxes = Boxes(params, score, cls, None if velocity is None else vel)
+        frame = Frame(boxes, stamp, pose=decoded.pose, key_frame=decoded.frame.key_frame)
+        return frame, len(decoded.boxes) - len(boxes)
     # What boxes_from_wire builds, without Boxes.from_arrays's conversions: the decoder's
     # columns have the wire's dtypes already (score float64, codes int32, one row each).
     boxes = Boxes(

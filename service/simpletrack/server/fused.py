@@ -26,7 +26,7 @@ from simpletrack.server.sensors import (
 )
 from simpletrack.server.vehicles import VehicleState, Waiting
 from simpletrack.wire.codec import Rejection, decode_detection_frame
-from simpletrack.wire.convert import boxes_from_wire, vehicle_tracks_to_wire
+from simpletrack.wire.convert import boxes_from_wire, detection_extents, vehicle_tracks_to_wire
 from simpletrack.wire.keys import VEHICLE_STREAM
 from simpletrack.wire.reasons import ErrorReason
 from simpletrack.wire.vehicle_tracks import encode_vehicle_track_frame
@@ -51,7 +51,9 @@ class FusedFrames:
         key = f"{vehicle}/{VEHICLE_STREAM}"
         got = w.sensors.get(key)
         state = got if isinstance(got, VehicleState) else None
-        decoded = decode_detection_frame(item.payload, ctx.limits, ctx.class_codes)
+        decoded = decode_detection_frame(
+            item.payload, ctx.limits, ctx.class_codes, detection_extents
+        )
         m.stages["decode"].observe(time.perf_counter() - t0)
         if isinstance(decoded, Rejection):
             w._refuse(item, vehicle, sensor, decoded)

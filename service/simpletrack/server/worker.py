@@ -84,7 +84,12 @@ from simpletrack.wire.codec import (
     encode_track_frame,
 )
 from simpletrack.wire.columns import TrackArrays
-from simpletrack.wire.convert import frame_from_wire, pack_tracks_checked, tracks_to_wire
+from simpletrack.wire.convert import (
+    detection_extents,
+    frame_from_wire,
+    pack_tracks_checked,
+    tracks_to_wire,
+)
 from simpletrack.wire.header import peek_header, restamp_tracks
 from simpletrack.wire.keys import Keys
 from simpletrack.wire.models import NAME_PATTERN, SensorSnapshot
@@ -523,7 +528,9 @@ class Worker(threading.Thread):
         vehicle, sensor = names
         state = self.sensors.sensor(f"{vehicle}/{sensor}")
 
-        decoded = decode_detection_frame(item.payload, ctx.limits, ctx.class_codes)
+        decoded = decode_detection_frame(
+            item.payload, ctx.limits, ctx.class_codes, detection_extents
+        )
         t1 = time.perf_counter()
         m.stages["decode"].observe(t1 - t0)
         if isinstance(decoded, Rejection):
