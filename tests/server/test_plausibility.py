@@ -137,6 +137,12 @@ def test_every_score_under_the_start_threshold() -> None:
     weak = street(score=0.3)
     ignored = np.full(len(weak), -1, np.int32)
     assert check_frame(weak, NOW, NOW, codes=ignored, thresholds=THRESHOLDS) == []
+    # ... nor does a strong one: 20 weak tracked boxes and a sure box of an ignored class.
+    mixed = replace(street(21, score=0.3), score=np.r_[np.full(20, 0.3), 0.99])
+    codes = np.r_[np.zeros(20, np.int32), np.int32(-1)].astype(np.int32)
+    for key_frame in (True, False):
+        (f,) = check_frame(mixed, NOW, NOW, codes=codes, thresholds=THRESHOLDS, key_frame=key_frame)
+        assert f.cause is Cause.SCORE_UNDER_THRESHOLD and "max score 0.3 of 20 boxes" in f.hint
 
 
 @pytest.mark.parametrize(

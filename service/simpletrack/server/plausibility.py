@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -116,6 +116,17 @@ class StartThresholds:
 
     key: F64
     non_key: float
+    # Indexed by a box's code, -1 (an ignored class) reaching the last entry, inf: one lookup
+    # gives each box its threshold, none an ignored box reaches.
+    by_code: F64 = field(init=False, repr=False)
+    non_key_by_code: F64 = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.key)
+        object.__setattr__(self, "by_code", np.append(self.key.astype(np.float64), np.inf))
+        object.__setattr__(
+            self, "non_key_by_code", np.append(np.full(n, float(self.non_key)), np.inf)
+        )
 
     @classmethod
     def of(cls, config: TrackerConfig) -> StartThresholds:
@@ -223,14 +234,15 @@ def _scores(
         )
     if codes is None or thresholds is None:
         return found
+    # A box that can start a track settles it, the usual case: three numpy calls.
+    need = (thresholds.by_code if key_frame else thresholds.non_key_by_code)[codes]
+    if (boxes.score >= need).any():
+        return found
     tracked = codes >= 0
     n = int(tracked.sum())
-    if n < MIN_BOXES_UNDER_THRESHOLD:
-        return found
-    score = boxes.score[tracked]
-    need = thresholds.key[codes[tracked]] if key_frame else np.full(n, thresholds.non_key)
-    if not (score >= need).any():
-        lowest = float(need.min())
+    if n >= MIN_BOXES_UNDER_THRESHOLD:
+        score = boxes.score[tracked]
+        lowest = float(need[tracked].min())
         found.append(
             Finding(
                 Cause.SCORE_UNDER_THRESHOLD,

@@ -51,7 +51,7 @@ class Arrival:
     session_id: int | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen: one is made per frame, and frozen sets each field by a call
 class _Undo:
     """A sensor as it was before its last frame. Cheap: the tracker replaces its track
     table on every step and never writes into it, so holding the old one copies nothing."""
