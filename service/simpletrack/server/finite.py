@@ -39,15 +39,10 @@ def first_non_finite(tracks: TrackArrays) -> tuple[str, int] | None:
     return None
 
 
-def non_finite_refusal(
-    tracks: TrackArrays, seq: int, stamp_ns: int, bad: tuple[str, int] | bool | None = True
-) -> Rejection | None:
-    """The refusal of a track frame that must not be published, or None when it may be.
-    ``bad``: the first non-finite (column, row) already found (None: none; True, the
-    default: look here)."""
-    if bad is True:
-        bad = first_non_finite(tracks)
-    if bad is None or bad is False:
+def non_finite_refusal(tracks: TrackArrays, seq: int, stamp_ns: int) -> Rejection | None:
+    """The refusal of a track frame that must not be published, or None when it may be."""
+    bad = first_non_finite(tracks)
+    if bad is None:
         return None
     column, row = bad
     return Rejection(
