@@ -136,16 +136,20 @@ _NO_COVARIANCE = np.zeros((0, 6, 6))
 _compiled: bool | None = None  # whether kernels run compiled (asked once)
 
 
+def _kernels_compiled() -> bool:
+    global _compiled
+    if _compiled is None:
+        _compiled = jit.compiled()
+    return _compiled
+
+
 def detection_extents(
     center: F32, size: F32, yaw: F32, score: F64, velocity: F32 | None, class_index: I32
 ) -> F64 | None:
     """The decoder's reductions of a detection frame's columns in one compiled call
     (core/input_kernels.py; ``decode_detection_frame``'s ``extents_of``); None when kernels
     run uncompiled: the decoder then reduces them one by one."""
-    global _compiled
-    if _compiled is None:
-        _compiled = jit.compiled()
-    if not _compiled:
+    if not _kernels_compiled():
         return None
     return _detection_extents(
         center, size, yaw, score, _NO_VELOCITY if velocity is None else velocity, class_index
@@ -164,11 +168,8 @@ def pack_tracks_checked(
     non-finite (column, row)). None when kernels run uncompiled, the tracks lack ages in
     seconds, for a version it does not know, or on a big-endian machine (the wire is
     little-endian): then the columns' way (``tracks_to_wire``)."""
-    global _compiled
-    if _compiled is None:
-        _compiled = jit.compiled()
     if (
-        not _compiled
+        not _kernels_compiled()
         or tracks.age_s is None
         or tracks.time_since_update_s is None
         or schema_version not in TRACK_COLUMNS_OF
@@ -247,10 +248,9 @@ def frame_from_wire(decoded: DecodedDetections, stamp: float) -> tuple[Frame, in
     arrays = decoded.boxes
     codes = arrays.class_index if decoded.codes is None else decoded.codes
     velocity = arrays.velocity
-    global _compiled
-    if _compiled is None:
-        _compiled = jit.compiled()
-    if _compiled:  # one compiled call for the rows the tracker takes (core/input_kernels.py)
+    if (
+        _kernels_compiled()
+    ):  # one compiled call for the rows the tracker takes (core/input_kernels.py)
         params, score, cls, vel = detection_rows(
             arrays.center,
             arrays.yaw,

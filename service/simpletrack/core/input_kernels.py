@@ -1,12 +1,12 @@
 """What a detection frame's columns go through before the tracker, in compiled calls.
 
-``detection_extents``: the decoder judges a frame's columns by their extents (finite, within bounds, sizes positive,
-class indices in the table; the plausibility checks read them too): a dozen numpy reductions
-over a few hundred values each, where the call costs more than the values, with the
-interpreter's lock held throughout. ``detection_extents`` walks the six columns once, the lock
-let go; wire/convert.py ``detection_extents`` hands it to the decoder, which falls back to its
-own reductions for a frame it finds anything wrong with (so every refusal is the one it
-always was).
+``detection_extents``: the decoder judges a frame's columns by their extents (finite, within
+bounds, sizes positive, class indices in the table; the plausibility checks read them too): a
+dozen numpy reductions over a few hundred values each, where the call costs more than the
+values, with the interpreter's lock held throughout. This walks the six columns once, the
+lock let go; wire/convert.py ``detection_extents`` hands it to the decoder, which falls back
+to its own reductions for a frame it finds anything wrong with (so every refusal is the one
+it always was).
 
 ``detection_rows``: the tracker's columns of the boxes it tracks (float64 ``params`` in the
 core's order, scores, codes, velocities), the rows of ignored classes left out, where

@@ -6,7 +6,7 @@ the interpreter per column: ``track_columns`` (14 arrays boxed on the way out), 
 per column, then msgpack). ``pack_columns`` computes the same columns (``track_columns``
 inlined: the same IEEE casts) and writes them as msgpack writes that map: the entries in the
 table's order, ``count`` as its smallest integer form, each column a ``bin`` with the smallest
-header that holds it, the values little-endian. tests/wire/test_packed_tracks.py holds the
+header that holds it, the values little-endian. tests/wire/test_convert.py holds the
 bytes equal to ``encode_track_frame``'s.
 """
 
