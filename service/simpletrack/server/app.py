@@ -18,7 +18,6 @@ import math
 import signal
 import threading
 import time
-from dataclasses import replace
 from types import FrameType
 from typing import Any
 
@@ -31,9 +30,9 @@ from simpletrack.core.tracker import Tracker
 from simpletrack.core.vehicle import Condition
 from simpletrack.server.announcer import Announcer
 from simpletrack.server.custody import Shared
-from simpletrack.server.custody_machine import Heard
 from simpletrack.server.gil import Trackers
 from simpletrack.server.group import Membership, Role, on_zenoh, undeclare
+from simpletrack.server.heard import HeardStreams
 from simpletrack.server.intake import (
     BurstBudget,
     Inbound,
@@ -56,18 +55,16 @@ from simpletrack.server.streams import Streams
 from simpletrack.server.subscriptions import Subscriptions, TracksHandlers
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
-from simpletrack.wire.codec import DecodeLimits, Rejection, encode
-from simpletrack.wire.header import peek_custody, peek_heard
+from simpletrack.wire.codec import DecodeLimits, encode
+from simpletrack.wire.header import peek_custody
 from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.models import SensorStatus, ServiceStatus
 from simpletrack.wire.reasons import STATUS_SCHEMA_VERSION, ErrorReason
-from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame
 
 log = get_logger("service")
 # How long a starting member listens to the group's tokens before it takes frames: its
 # first view then holds the members already there (tokens arrive within milliseconds).
 SETTLE_S = 0.3
-MAX_PUBLISHED = 1_000_000
 # Compiling every kernel (a cold numba cache: the first start after an install) measured
 # 30-45 s on 2 busy cores; a warm cache loads them in ~1 s.
 COMPILE_ALL_S = 40.0
@@ -130,6 +127,7 @@ class Service:
         self._handoff_queryables: list[Any] = []
         # How this member's name appears in its own tracks messages (msgpack key and value).
         self._own_instance = msgpack.packb("instance") + msgpack.packb(settings.instance)
+        self._heard_streams = HeardStreams(self._own_instance)
 
     # ------------------------------------------------------------------ start
     def start(self) -> None:
@@ -160,6 +158,7 @@ class Service:
             handoff_timeout_s=s.handoff_timeout_s,
             checkpoint_frames=s.checkpoint_frames,
             checkpoint_max_age_s=s.checkpoint_max_age_s,
+            heard=self._heard_streams,
         )
         if s.group:
             self.membership.start(session)
@@ -472,14 +471,8 @@ class Service:
         """The group changed: the newest messages kept of streams this member neither owns
         nor stands by for now go (no failover of theirs comes here), so what it keeps is
         its current streams' messages, not every stream it ever stood by for."""
-        if self._shared is None:
-            return
         role = self.membership.role
-        with self._shared.lock:
-            published = self._shared.published
-            for stream, heard in list(published.items()):
-                if heard.payload is not None and role(stream) is Role.NONE:
-                    published[stream] = replace(heard, payload=None)
+        self._heard_streams.forget_payloads(lambda stream: role(stream) is not Role.NONE)
 
     def _wanted(self, key: str) -> bool:
         """Zenoh callback, every frame: only frames of sensors this member owns or stands
@@ -492,36 +485,22 @@ class Service:
 
     def _on_tracks(self, sample: zenoh.Sample) -> None:
         """Tracks frames of sensors this member owns or stands by for: how far planners
-        have them, and the ids they hold (a takeover neither repeats nor reuses them)."""
+        have them, and the ids they hold (a takeover neither repeats nor reuses them); read
+        in batches (server/heard.py)."""
         heard = self._heard_stream(sample)
-        if heard is None:
-            return
-        names, payload = heard
-        peeked = peek_heard(payload)
-        if peeked is None:
-            return
-        stamp_ns, next_id, epoch = peeked
-        self._heard(f"{names[0]}/{names[1]}", stamp_ns, next_id, None, epoch, payload)
+        if heard is not None:
+            self._heard_streams.add(*heard)
 
     def _on_vehicle_tracks(self, sample: zenoh.Sample) -> None:
         """A fused vehicle's tracks: as ``_on_tracks``, and the vehicle's message seq."""
         heard = self._heard_stream(sample)
-        if heard is None:
-            return
-        names, payload = heard
-        out = decode_vehicle_track_frame(payload)
-        if isinstance(out, Rejection):
-            return
-        frame, tracks = out
-        next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-        self._heard(
-            f"{names[0]}/{names[1]}", frame.stamp_ns, next_id, frame.seq, frame.epoch, payload
-        )
+        if heard is not None:
+            self._heard_streams.add(*heard, vehicle=True)
 
-    def _heard_stream(self, sample: zenoh.Sample) -> tuple[tuple[str, str], bytes] | None:
+    def _heard_stream(self, sample: zenoh.Sample) -> tuple[str, bytes] | None:
         """The stream of a tracks sample worth learning from, and the payload (copied out
-        once): one this member owns or stands by for and does not hold (its own tracks teach
-        nothing; another member's with a higher epoch fence it)."""
+        once): one this member owns or stands by for and does not hold (another member's
+        with a higher epoch fences it). Decided as it comes: what is held changes."""
         names = self.keys.sensor_of(str(sample.key_expr))
         if names is None or self._shared is None or len(self.membership.members) <= 1:
             return None  # alone, the only tracks are this member's own
@@ -537,11 +516,7 @@ class Service:
             if held is not None:
                 self._fence_if_superseded(worker, stream, held.epoch, payload)
                 return None
-        # Not held here, but maybe published here (before a fence or a release): what this
-        # member sent is no sign of what planners have from the others.
-        if self._own_instance in payload:
-            return None
-        return names, payload
+        return stream, payload
 
     def _fence_if_superseded(self, worker: Worker, stream: str, epoch: int, payload: bytes) -> None:
         """A stream held here, heard from another member with a higher custody epoch: that
@@ -551,33 +526,6 @@ class Service:
         instance, theirs = peek_custody(payload)
         if instance != self.settings.instance and theirs is not None and theirs > epoch:
             worker.supersede(stream)
-
-    def _heard(
-        self,
-        stream: str,
-        stamp_ns: int,
-        next_id: int,
-        seq: int | None,
-        epoch: int | None,
-        payload: bytes,
-    ) -> None:
-        """How far planners have ``stream``, with the newest message heard (a failover whose
-        checkpoint holds its frame publishes it again: the custody machine's Republish)."""
-        assert self._shared is not None
-        published = self._shared.published
-        with self._shared.lock:
-            old = published.get(stream)
-            if old is not None:
-                newer = stamp_ns >= old.stamp_ns
-                published[stream] = Heard(
-                    max(old.stamp_ns, stamp_ns),
-                    max(old.next_id, next_id),
-                    _top(old.seq, seq),
-                    _top(old.epoch, epoch),
-                    payload if newer else old.payload,
-                )
-            elif len(published) < MAX_PUBLISHED:
-                published[stream] = Heard(stamp_ns, next_id, seq, epoch, payload)
 
     def _on_checkpoint(self, intake: Intake, sample: zenoh.Sample) -> None:
         names = self.keys.service_sensor_of(str(sample.key_expr))
@@ -819,10 +767,6 @@ class Service:
             time.sleep(0.02)
             held = sum(len(w.sensors) for w in self._workers)
         log.info("handoffs_done" if not held else "handoffs_timed_out", left_with_standby=held)
-
-
-def _top(a: int | None, b: int | None) -> int | None:
-    return a if b is None else b if a is None else max(a, b)
 
 
 def _stream_names(vehicle: str, sensor: str) -> bool:

@@ -32,6 +32,7 @@ from simpletrack.server.custody_machine import (
     View,
 )
 from simpletrack.server.group import Membership
+from simpletrack.server.heard import HeardStreams
 from simpletrack.server.intake import FINAL_CHECKPOINT, FRAME_OVERHEAD, Inbound
 from simpletrack.server.logs import get_logger
 from simpletrack.server.metrics import Metrics
@@ -62,8 +63,8 @@ class Shared:
     handoff_timeout_s: float
     checkpoint_frames: int  # the checkpoint rule's (server/checkpoint_rule.py)
     checkpoint_max_age_s: float
-    # vehicle/sensor -> the last tracks frame heard on its key (any member's)
-    published: dict[str, Heard] = field(default_factory=dict)
+    # vehicle/sensor -> the last tracks frame heard on its key (any other member's)
+    heard: HeardStreams
     lock: threading.Lock = field(default_factory=threading.Lock)
     counts: dict[str, int] = field(  # for the status reply; the metrics count the same
         default_factory=lambda: {"handoffs_in": 0, "handoffs_out": 0, "failovers": 0}
@@ -122,8 +123,7 @@ class Custody:
         return View(m.me, m.members, Role.OWNER, m.me)
 
     def heard(self, stream: str) -> Heard | None:
-        with self.shared.lock:
-            return self.shared.published.get(stream)
+        return self.shared.heard.get(stream)
 
     def role(self, stream: str) -> Role:
         return self.machine.role(stream, self.view(stream), time.monotonic())
