@@ -157,3 +157,40 @@ def test_peek_written_reads_a_checkpoint_s_written_ns_and_nothing_from_garbage()
     assert peek_written(b"\xc1 garbage") is None
     assert peek_written(msgpack.packb({"written_ns": -1})) is None
     assert peek_written(msgpack.packb([1234])) is None
+
+
+@pytest.mark.parametrize("empty", [False, True])
+@pytest.mark.parametrize("epoch", [None, 7])
+def test_peek_vehicle_heard_reads_what_the_full_decoder_reads(
+    empty: bool, epoch: int | None
+) -> None:
+    from simpletrack.wire import generate
+    from simpletrack.wire.header import peek_vehicle_heard
+    from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame
+
+    payload = generate._vehicle_tracks(empty=empty, epoch=epoch)
+    out = decode_vehicle_track_frame(payload)
+    assert not isinstance(out, Rejection)
+    frame, tracks = out
+    next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
+    assert peek_vehicle_heard(payload) == (frame.stamp_ns, next_id, frame.seq, frame.epoch)
+
+
+@given(st.binary(max_size=300))
+@settings(max_examples=200, deadline=None)
+def test_peek_vehicle_heard_never_raises_and_reads_nothing_from_garbage(payload: bytes) -> None:
+    from simpletrack.wire.header import peek_vehicle_heard
+
+    assert peek_vehicle_heard(payload) is None
+
+
+def test_peek_vehicle_heard_needs_the_vehicle_s_seq_and_an_id_column_of_its_count() -> None:
+    from simpletrack.wire import generate
+    from simpletrack.wire.header import peek_vehicle_heard
+
+    obj = msgpack.unpackb(generate._vehicle_tracks(), raw=False)
+    assert peek_vehicle_heard(msgpack.packb(obj)) is not None
+    for broken in ({"seq": -1}, {"seq": "1042"}, {"tracks": {**obj["tracks"], "count": 3}}):
+        assert peek_vehicle_heard(msgpack.packb({**obj, **broken})) is None
+    del obj["seq"]
+    assert peek_vehicle_heard(msgpack.packb(obj)) is None

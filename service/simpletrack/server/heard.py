@@ -21,9 +21,7 @@ from dataclasses import replace
 
 from simpletrack.server.custody_machine import Heard
 from simpletrack.server.logs import get_logger
-from simpletrack.wire.codec import Rejection
-from simpletrack.wire.header import peek_heard
-from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame
+from simpletrack.wire.header import peek_heard, peek_vehicle_heard
 
 log = get_logger("heard")
 
@@ -102,12 +100,9 @@ class HeardStreams:
         if self._own in payload:
             return
         if vehicle:
-            out = decode_vehicle_track_frame(payload)
-            if isinstance(out, Rejection):
-                return
-            frame, tracks = out
-            next_id = int(tracks.id.max()) + 1 if len(tracks) else 0
-            self._record(stream, frame.stamp_ns, next_id, frame.seq, frame.epoch, payload)
+            read = peek_vehicle_heard(payload)
+            if read is not None:
+                self._record(stream, *read, payload)
             return
         peeked = peek_heard(payload)
         if peeked is not None:
