@@ -4,12 +4,13 @@ its newest message (a failover whose checkpoint holds that frame publishes it ag
 
 A standby hears every tracks message of its streams. Read one at a time on Zenoh's thread,
 each message paid for its parse with cold caches: at 10 Hz a stream, nothing of the parse's
-code or memory is still warm from the message before, and the read cost a standby more than
-its Zenoh receive (docs/BENCHMARKS.md, "What each role costs per frame"). So the Zenoh
-callback only keeps the message (``add``), and the messages are read together: once
-``batch`` are waiting, or ``batch_s`` after the first of them came. Anything that looks at
-what was heard (``get``, ``forget_payloads``) reads the waiting messages first, so it never
-sees less than what had arrived when it looked.
+code or memory is still warm from the message before, and the read cost a standby about as
+much as Zenoh's receive (docs/BENCHMARKS.md, "What each role costs per frame"). So the Zenoh
+callback judges the message as it comes (server/app.py: the stream's role, whether a worker
+holds it) and keeps it (``add``); the messages are read together, once ``batch`` are
+waiting or ``batch_s`` after the first of them came. Whatever looks at what was heard
+(``get``, ``forget_payloads``) reads the waiting messages first: it never sees less than
+what had arrived when it looked.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ log = get_logger("heard")
 __all__ = ["BATCH", "BATCH_S", "MAX_STREAMS", "HeardStreams"]
 
 BATCH = 64  # messages read together (0.16 s of 40 streams at 10 Hz)
-BATCH_S = 0.5  # the longest a message waits unread for others to join it (no reader waits)
+BATCH_S = 0.5  # the longest a message waits for others (a reader reads it at once)
 MAX_STREAMS = 1_000_000  # bounded: a flood of made-up keys cannot grow it
 
 
