@@ -248,9 +248,8 @@ def frame_from_wire(decoded: DecodedDetections, stamp: float) -> tuple[Frame, in
     arrays = decoded.boxes
     codes = arrays.class_index if decoded.codes is None else decoded.codes
     velocity = arrays.velocity
-    if (
-        _kernels_compiled()
-    ):  # one compiled call for the rows the tracker takes (core/input_kernels.py)
+    # One compiled call for the rows the tracker takes (core/input_kernels.py).
+    if _kernels_compiled():
         params, score, cls, vel = detection_rows(
             arrays.center,
             arrays.yaw,
