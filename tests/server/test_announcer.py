@@ -14,6 +14,7 @@ import pytest
 
 from simpletrack.server.announcer import ITEM_OVERHEAD, Announcer
 from simpletrack.server.metrics import Metrics
+from tests.server.fake_clock import Clock
 from tests.service_helpers import LogEvents, log_events
 
 CAR = ("car", "lidar")
@@ -33,14 +34,6 @@ class Session:
         self.entered.set()
         self.hold.wait()
         self.puts.append((key, payload))
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 @pytest.fixture

@@ -13,6 +13,7 @@ import pytest
 from simpletrack.server import heard as heard_module
 from simpletrack.server.heard import HeardStreams
 from simpletrack.wire import generate
+from tests.server.fake_clock import Clock
 
 OWN = msgpack.packb("instance") + msgpack.packb("member-b")
 
@@ -31,14 +32,6 @@ def message(stamp_ns: int, ids: list[int], epoch: int | None = 3, instance: str 
             tracks[name] = (column[:width] * n) if n else b""
     tracks["count"], tracks["id"] = n, np.array(ids, dtype="<i8").tobytes()
     return msgpack.packb(obj)
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 @pytest.fixture
@@ -81,10 +74,10 @@ def test_messages_are_read_together_when_the_batch_is_full_or_its_first_is_old(
     assert len(reads) == 4  # full: all four, in the order they came
     assert [msgpack.unpackb(p)["stamp_ns"] for p in reads] == [0, 1, 2, 3]
     heard.add("v/s4", message(4, [4]))
-    clock.now += 0.049
+    clock.t += 0.049
     heard.add("v/s5", message(5, [5]))
     assert len(reads) == 4
-    clock.now += 0.002  # the first waiting one is 51 ms old
+    clock.t += 0.002  # the first waiting one is 51 ms old
     heard.add("v/s6", message(6, [6]))
     assert len(reads) == 7
 

@@ -5,14 +5,7 @@ count, none held forever."""
 from __future__ import annotations
 
 from simpletrack.server.outbox import RepeatLog
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
+from tests.server.fake_clock import Clock
 
 
 def line(seq: int) -> dict[str, object]:
