@@ -67,3 +67,23 @@ def test_equal_stamps_go_in_the_configured_sensor_order() -> None:
     buf.push("camera", 7, 100, "camera", now=0.0)
     buf.push("lidar", 3, 100, "lidar", now=0.0)
     assert buf.flush() == ["lidar", "camera"]
+
+
+def test_a_sensor_assumed_heard_is_waited_for_as_one_heard() -> None:
+    """A state taken over starts a new buffer: the sensors it had live are assumed heard,
+    so a camera frame does not go ahead of the lidar's stamped before it."""
+    fresh: ReorderBuffer[int] = ReorderBuffer(SENSORS, 0.3, 1.0)
+    fresh.push("camera", 29, 2_900, 29, now=10.0)
+    assert fresh.pop_ready(10.0) == [29]  # nothing known of the lidar: not waited for
+
+    taken: ReorderBuffer[int] = ReorderBuffer(SENSORS, 0.3, 1.0)
+    taken.assume_heard("lidar", 2_500, now=10.0)
+    taken.push("camera", 29, 2_900, 29, now=10.0)
+    assert taken.pop_ready(10.0) == []  # the lidar is live and has not passed stamp 2,900
+    taken.push("lidar", 28, 2_800, 28, now=10.1)
+    assert taken.pop_ready(10.1) == [28]  # in stamp order; the camera waits on
+    assert taken.pop_ready(10.3) == [29]  # its window
+    assumed: ReorderBuffer[int] = ReorderBuffer(SENSORS, 0.3, 1.0)
+    assumed.assume_heard("lidar", 2_500, now=10.0)
+    assumed.push("camera", 29, 2_900, 29, now=11.5)
+    assert assumed.pop_ready(11.5) == [29]  # silent for silent_after_s since: not waited for

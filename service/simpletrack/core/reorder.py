@@ -54,6 +54,14 @@ class ReorderBuffer(Generic[T]):
         self._latest[sensor] = max(self._latest.get(sensor, stamp_ns), stamp_ns)
         self._heard[sensor] = now
 
+    def assume_heard(self, sensor: str, stamp_ns: int, now: float) -> None:
+        """Count ``sensor`` as heard at ``now``, its newest stamp ``stamp_ns``: a state taken
+        over (its buffer new) waits for the sensors it had live, as the buffer it replaces
+        did, instead of finding them silent and letting another sensor's frame go ahead of
+        theirs stamped before it."""
+        self._latest[sensor] = max(self._latest.get(sensor, stamp_ns), stamp_ns)
+        self._heard[sensor] = now
+
     def silent(self, sensor: str, now: float) -> bool:
         heard = self._heard.get(sensor)
         return heard is None or now - heard > self.silent_after_s

@@ -848,9 +848,10 @@ class CustodyMachine(Generic[F]):
             floor = 0 if t.heard is None else t.heard.next_id
             acts.append(RaiseIds(stream, floor))
         # In stamp order, ties as a fused vehicle's reorder buffer orders them (its sensors'
-        # order, then seq): a fresh buffer lets a replayed frame go at once, and one of
-        # another sensor stamped the same coming after it would be late (a restored state
-        # has no history to re-process it into). Each header is read once.
+        # order, then seq): the taker's new buffer lets a replayed frame go at once when the
+        # state's other sensors were silent, and one of another sensor stamped the same
+        # coming after it would be late (a restored state has no history to re-process it
+        # into). Each header is read once.
         order = {name: i for i, name in enumerate(self.fused_sensors)}
         heads = [(*self.peek(f), f) for f in [*t.replay, *waiting]]
         peeked = sorted(
