@@ -361,3 +361,37 @@ def test_a_killed_camera_costs_the_window_then_nothing_and_is_reported_silent(
     camera = next(s for s in vehicle.sensors if s.sensor == "camera")
     assert camera.state is SensorCondition.SILENT and camera.idle_s is not None
     assert camera.idle_s > 2.0
+
+
+def test_a_camera_frame_first_after_the_vehicles_link_was_down_is_tracked_not_flagged(
+    tmp_path: Path,
+) -> None:
+    """The vehicle's link is down for 1.5 s (neither sensor sends), and the camera's frame
+    is the first to come back. The lidar, silent since, is no clock to judge it by: the
+    frame is tracked, not refused `sensor_flagged` with the camera's stamps said to run
+    ahead of the lidar's (the lidar's standing used to be updated only after the frame)."""
+    config = write_config(tmp_path, window_s=0.3, silent_after_s=1.0)
+    svc = start_service(tmp_path, "--config", str(config))
+    try:
+        with client(svc.endpoint) as c:
+            planner = Planner(c.session)
+            start = time.time_ns() + 200_000_000  # from now: sent in real time
+            wire = frames(3.5, start)
+            down, up = start + 1_000_000_000, start + 2_500_000_000
+            back = [f for f in wire if f.stamp_ns >= up]
+            first = next(f for f in back if f.sensor == "camera")
+            # The lidar's frames stamped before the camera's go right after it.
+            order = [*(f for f in wire if f.stamp_ns < down), first]
+            order += [f for f in back if f is not first]
+            for f in order:
+                time.sleep(max(0.0, (f.stamp_ns - time.time_ns()) * 1e-9))
+                c.put(VEHICLE, f.sensor, f.payload())
+            wait_for(lambda: any(fr.stamp_ns == back[-1].stamp_ns for fr, _ in planner.messages),
+                     5, "the last frame's message")  # fmt: skip
+    finally:
+        svc.stop()
+    assert [e for e in planner.errors if e.reason is ErrorReason.SENSOR_FLAGGED] == []
+    answered = {(fr.sensor, fr.sensor_seq) for fr, _ in planner.messages}
+    assert ("camera", first.seq) in answered
+    after = [fr for fr, _ in planner.messages if fr.stamp_ns >= up]
+    assert all(fr.sensor_state[1] is SensorCondition.OK for fr in after), after

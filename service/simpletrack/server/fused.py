@@ -114,18 +114,26 @@ class FusedFrames:
         now = time.monotonic()
         ready = state.buffer.flush() if flush else state.buffer.pop_ready(now)
         wait = self.w.ctx.metrics.fusion_wait
+        if ready:
+            # The sensors' standing before the frames are judged: a reference silent since
+            # before them (a vehicle's link down for seconds) is no clock to check them by.
+            self._standing(state, now)
         for waiting in ready:
             wait.observe(now - waiting.item.received_at)
             with self.w.ctx.trackers.tracking(self.w.index):
                 self._apply(state, waiting)
         if ready:  # the sensors' standing, for the next frames' wait and the messages
-            for sensor in state.tracker.sensors:
-                state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
+            self._standing(state, now)
             state.buffer.ignored = frozenset(
                 s for s, r in state.tracker.records.items() if r.condition.kept_out
             )
         if not len(state.buffer):
             self._waiting.discard(f"{state.vehicle}/{VEHICLE_STREAM}")
+
+    @staticmethod
+    def _standing(state: VehicleState, now: float) -> None:
+        for sensor in state.tracker.sensors:
+            state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
 
     def forget(self, stream: str) -> None:
         """The vehicle left this worker without its waiting frames applied (a fence)."""
