@@ -9,10 +9,13 @@ the same frames in stamp order (tests/fusion_scenario.py)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -82,6 +85,26 @@ def _send(c: object, frames_in_order: list[WireFrame], pause_s: float = 0.0) -> 
 def _past(seconds: float = 30.0) -> int:
     """A start stamp in the past: no frame's stamp runs ahead of the service's clock."""
     return time.time_ns() - round(seconds * 1e9)
+
+
+@contextlib.contextmanager
+def _fusing(tmp_path: Path, window_s: float) -> Iterator[tuple[Any, Planner, int]]:
+    """A service fusing the vehicle (``silent_after_s`` 1 s), a client and its planner, and
+    a start stamp 0.2 s from now: frames sent in real time (``_in_real_time``)."""
+    config = write_config(tmp_path, window_s=window_s, silent_after_s=1.0)
+    svc = start_service(tmp_path, "--config", str(config))
+    try:
+        with client(svc.endpoint) as c:
+            yield c, Planner(c.session), time.time_ns() + 200_000_000
+    finally:
+        svc.stop()
+
+
+def _in_real_time(c: Any, wire: list[WireFrame]) -> None:
+    """Each frame put at its stamp, or at once once that has passed."""
+    for f in wire:
+        time.sleep(max(0.0, (f.stamp_ns - time.time_ns()) * 1e-9))
+        c.put(VEHICLE, f.sensor, f.payload())
 
 
 def _check_against_core(messages: list, want: list) -> None:
@@ -327,24 +350,13 @@ def test_a_killed_camera_costs_the_window_then_nothing_and_is_reported_silent(
     tmp_path: Path,
 ) -> None:
     window = 0.3
-    config = write_config(tmp_path, window_s=window, silent_after_s=1.0)
-    svc = start_service(tmp_path, "--config", str(config))
-    try:
-        with client(svc.endpoint) as c:
-            planner = Planner(c.session)
-            start = time.time_ns() + 200_000_000  # from now: sent in real time
-            wire = frames(5.0, start)
-            death = start + 2_000_000_000  # the camera sends nothing from 2 s on
-            for f in wire:
-                if f.sensor == "camera" and f.stamp_ns >= death:
-                    continue
-                time.sleep(max(0.0, (f.stamp_ns - time.time_ns()) * 1e-9))
-                c.put(VEHICLE, f.sensor, f.payload())
-            wait_for(lambda: planner.n() >= 1, 5, "fused messages")
-            time.sleep(window + 0.2)
-            status = _status(c)
-    finally:
-        svc.stop()
+    with _fusing(tmp_path, window) as (c, planner, start):
+        death = start + 2_000_000_000  # the camera sends nothing from 2 s on
+        wire = frames(5.0, start)
+        _in_real_time(c, [f for f in wire if f.sensor == "lidar" or f.stamp_ns < death])
+        wait_for(lambda: planner.n() >= 1, 5, "fused messages")
+        time.sleep(window + 0.2)
+        status = _status(c)
     lidar = [(f, t) for f, t in planner.messages if f.sensor == "lidar"]
     after = [f for f, _ in lidar if f.stamp_ns >= death]
     assert len(after) >= 25  # every lidar frame of the last 3 s answered
@@ -370,26 +382,16 @@ def test_a_camera_frame_first_after_the_vehicles_link_was_down_is_tracked_not_fl
     is the first to come back. The lidar, silent since, is no clock to judge it by: the
     frame is tracked, not refused `sensor_flagged` with the camera's stamps said to run
     ahead of the lidar's (the lidar's standing used to be updated only after the frame)."""
-    config = write_config(tmp_path, window_s=0.3, silent_after_s=1.0)
-    svc = start_service(tmp_path, "--config", str(config))
-    try:
-        with client(svc.endpoint) as c:
-            planner = Planner(c.session)
-            start = time.time_ns() + 200_000_000  # from now: sent in real time
-            wire = frames(3.5, start)
-            down, up = start + 1_000_000_000, start + 2_500_000_000
-            back = [f for f in wire if f.stamp_ns >= up]
-            first = next(f for f in back if f.sensor == "camera")
-            # The lidar's frames stamped before the camera's go right after it.
-            order = [*(f for f in wire if f.stamp_ns < down), first]
-            order += [f for f in back if f is not first]
-            for f in order:
-                time.sleep(max(0.0, (f.stamp_ns - time.time_ns()) * 1e-9))
-                c.put(VEHICLE, f.sensor, f.payload())
-            wait_for(lambda: any(fr.stamp_ns == back[-1].stamp_ns for fr, _ in planner.messages),
-                     5, "the last frame's message")  # fmt: skip
-    finally:
-        svc.stop()
+    with _fusing(tmp_path, 0.3) as (c, planner, start):
+        wire = frames(3.5, start)
+        down, up = start + 1_000_000_000, start + 2_500_000_000
+        back = [f for f in wire if f.stamp_ns >= up]
+        first = next(f for f in back if f.sensor == "camera")
+        # The lidar's frames stamped before the camera's go right after it.
+        _in_real_time(c, [*(f for f in wire if f.stamp_ns < down), first])
+        _in_real_time(c, [f for f in back if f is not first])
+        wait_for(lambda: any(fr.stamp_ns == back[-1].stamp_ns for fr, _ in planner.messages),
+                 5, "the last frame's message")  # fmt: skip
     assert [e for e in planner.errors if e.reason is ErrorReason.SENSOR_FLAGGED] == []
     answered = {(fr.sensor, fr.sensor_seq) for fr, _ in planner.messages}
     assert ("camera", first.seq) in answered
