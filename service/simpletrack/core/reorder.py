@@ -51,8 +51,7 @@ class ReorderBuffer(Generic[T]):
     def push(self, sensor: str, seq: int, stamp_ns: int, item: T, now: float) -> None:
         key = (stamp_ns, self._index[sensor], seq)
         heapq.heappush(self._heap, _Waiting(key, next(self._count), now, sensor, item))
-        self._latest[sensor] = max(self._latest.get(sensor, stamp_ns), stamp_ns)
-        self._heard[sensor] = now
+        self.assume_heard(sensor, stamp_ns, now)
 
     def assume_heard(self, sensor: str, stamp_ns: int, now: float) -> None:
         """Count ``sensor`` as heard at ``now``, its newest stamp ``stamp_ns``: a state taken

@@ -117,23 +117,15 @@ class FusedFrames:
         if ready:
             # The sensors' standing before the frames are judged: a reference silent since
             # before them (a vehicle's link down for seconds) is no clock to check them by.
-            self._standing(state, now)
+            state.standing(now)
         for waiting in ready:
             wait.observe(now - waiting.item.received_at)
             with self.w.ctx.trackers.tracking(self.w.index):
                 self._apply(state, waiting)
-        if ready:  # the sensors' standing, for the next frames' wait and the messages
-            self._standing(state, now)
-            state.buffer.ignored = frozenset(
-                s for s, r in state.tracker.records.items() if r.condition.kept_out
-            )
+        if ready:  # and after, for the next frames' wait and the messages
+            state.standing(now)
         if not len(state.buffer):
             self._waiting.discard(f"{state.vehicle}/{VEHICLE_STREAM}")
-
-    @staticmethod
-    def _standing(state: VehicleState, now: float) -> None:
-        for sensor in state.tracker.sensors:
-            state.tracker.set_silent(sensor, state.buffer.silent(sensor, now))
 
     def forget(self, stream: str) -> None:
         """The vehicle left this worker without its waiting frames applied (a fence)."""

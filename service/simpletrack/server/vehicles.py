@@ -99,6 +99,15 @@ class VehicleState:
             lags = self.lags.setdefault(sensor, deque(maxlen=64))
             lags.append((arrival.received_ns - arrival.stamp_ns) * 1e-9)
 
+    def standing(self, now: float) -> None:
+        """Each sensor's standing from its buffer as of ``now``: silent or not, and the
+        kept-out sensors the buffer does not wait for."""
+        for sensor in self.tracker.sensors:
+            self.tracker.set_silent(sensor, self.buffer.silent(sensor, now))
+        self.buffer.ignored = frozenset(
+            s for s, r in self.tracker.records.items() if r.condition.kept_out
+        )
+
     def status(self, now: float) -> tuple[VehicleStatus, list[SensorStatus]]:
         """The vehicle's entry of the service status, and one sensor entry per fused
         sensor heard (what a publisher resuming its seq asks for)."""
@@ -299,12 +308,11 @@ def vehicle_from_snapshot(
     # found silent (a camera frame let go ahead of the lidar's stamped before it would be
     # judged against stale tracks: flagged for its clock, once after a failover in CI).
     now = time.monotonic()
-    records = state.tracker.records
     for sensor, arrival in state.taken.items():
-        rec = records.get(sensor)
+        rec = state.tracker.records.get(sensor)
         if rec is not None and rec.condition is Condition.OK:
             state.buffer.assume_heard(sensor, arrival.stamp_ns, now)
-    state.buffer.ignored = frozenset(s for s, r in records.items() if r.condition.kept_out)
+    state.standing(now)
     for sensor, data in obj["per_sensor"].items():
         sub = decode_message(data, SensorSnapshot, _SNAP_LIMITS)
         if isinstance(sub, Rejection) or sub.tracker is None:
