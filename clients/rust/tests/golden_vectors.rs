@@ -13,7 +13,10 @@ use simpletrack_client::wire::{
 };
 
 fn vectors_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../schemas/vectors")
+    // The running checkout's, as cargo test sets it: a test binary that a shared target dir
+    // kept from another checkout's build must not read that checkout's vectors.
+    let root = std::env::var("CARGO_MANIFEST_DIR").unwrap_or(env!("CARGO_MANIFEST_DIR").into());
+    PathBuf::from(root).join("../../schemas/vectors")
 }
 
 fn rows<const K: usize, T: Copy + Into<f64>>(rows: &[[T; K]]) -> Value {
