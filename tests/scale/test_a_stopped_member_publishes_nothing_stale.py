@@ -3,8 +3,9 @@ their last 200 frames. The members announce a 3 s Zenoh lease and the router clo
 whose queue stays full for 1 s (docs/SCALE.md, "Hung member": how to shorten the wait). The
 busiest member is stopped with SIGSTOP for 12 s (past the lease: the group takes its sensors
 over) and then continued. A raw subscriber sees every
-frame answered, every message equal to an uninterrupted tracker's tracks (at most one
-identical repeat per moved sensor: a failover publishes the last frame it heard again), and
+frame answered, every message equal to an uninterrupted tracker's tracks (at most two
+identical repeats per moved sensor: a failover publishes again the last frame its standby
+was told of, and the one after it if that went out before its word: server/told.py), and
 none stale: no message with a lower custody epoch than one already published on its key
 (the resumed member fences itself before it tracks anything: docs/SCALE.md, "Fencing"), but
 for at most one message a sensor that the member had handed to Zenoh before the stop and
@@ -115,7 +116,7 @@ def test_a_member_stopped_past_the_lease_publishes_nothing_stale(tmp_path: Path)
         assert len(in_flight) <= len({x.split()[0] for x in in_flight}), in_flight  # 1 a sensor
         assert not unanswered, (len(unanswered), unanswered[:10])
         assert not unequal, (len(unequal), unequal[:10])
-        assert max(repeats.values()) <= 1, (repeats.most_common(5), repeated[:10])
+        assert max(repeats.values()) <= 2, (repeats.most_common(5), repeated[:10])
         # The group took the stopped member's sensors over, and it took them back.
         theirs = {n for n, v in got.items() if any(f.instance == busiest for f, _ in v)}
         moved = {

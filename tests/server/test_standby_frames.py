@@ -1,5 +1,5 @@
-"""Which sensors' frames a member subscribes to (``subscribe = "owned"``,
-server/subscriptions.py ``hears_frames``). A standby used to hear every frame of the sensors
+"""Which sensors' frames and tracks a member subscribes to (``subscribe = "owned"``,
+server/subscriptions.py ``hears_frames``, ``hears_tracks``). A standby used to hear every frame of the sensors
 it stands by for: 0.32 ms a frame of its CPU, a quarter of the owner's, for copies a takeover
 can take from the vehicle's cache (scripts/standby_cost.py). With ``standby = "checkpoints"``
 (the default) it hears only what the cache cannot give back."""
@@ -10,7 +10,7 @@ import pytest
 
 from simpletrack.server.group import Role
 from simpletrack.server.settings import ServiceSettings, StandbyCopy
-from simpletrack.server.subscriptions import hears_frames
+from simpletrack.server.subscriptions import hears_frames, hears_tracks
 
 OWN, STAND, NO = Role.OWNER, Role.STANDBY, Role.NONE
 
@@ -33,6 +33,23 @@ def test_who_hears_a_sensors_frames(
 ) -> None:
     got = hears_frames(role, cached=cached, fuses_later=fuses_later, standby_frames=standby_frames)
     assert got is hears
+
+
+@pytest.mark.parametrize(
+    ("role", "vehicle", "fuses_later", "hears"),
+    [
+        (OWN, False, False, True),  # another member's message on its key fences the owner
+        (OWN, True, False, True),
+        (STAND, False, False, False),  # its owner tells it, many streams in one message
+        (STAND, True, False, True),  # a fused vehicle's: the vehicle's message seq too
+        (STAND, False, True, True),  # a member of before fusion tells nothing
+        (NO, True, True, False),
+    ],
+)
+def test_who_hears_a_streams_tracks(
+    role: Role, vehicle: bool, fuses_later: bool, hears: bool
+) -> None:
+    assert hears_tracks(role, vehicle=vehicle, fuses_later=fuses_later) is hears
 
 
 def test_the_default_standby_hears_checkpoints_only() -> None:

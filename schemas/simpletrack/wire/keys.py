@@ -77,6 +77,10 @@ class Keys:
     def handoff(self, instance: str = "*", vehicle: str = "*", sensor: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{instance}/handoff/{vehicle}/{sensor}"
 
+    def told(self, standby: str) -> str:
+        """What owners tell ``standby`` of the tracks they published (server/told.py)."""
+        return f"{self.prefix}/{SERVICE_CHUNK}/{standby}/told"
+
     def checkpoint(self, standby: str, vehicle: str = "*", sensor: str = "*") -> str:
         return f"{self.prefix}/{SERVICE_CHUNK}/{standby}/checkpoint/{vehicle}/{sensor}"
 

@@ -96,9 +96,10 @@ def group(members: int, opts: ServiceBenchOptions, tmp: Path) -> Iterator[list[S
 
 # ----------------------------------------------------------------------------- faults
 def _republished(answers: list[tuple[int, str]], victim: str) -> bool:
-    """The victim's last frame answered again by the member that took its sensor over (a
-    failover publishes the last frame heard again: the victim may have been killed before
-    its put reached every link)."""
+    """One of the victim's last frames answered again by the member that took its sensor
+    over (a failover publishes the last frame heard, or told, again: the victim may have been
+    killed before its put reached every link; and the one after, put before its word went:
+    server/told.py)."""
     if len(answers) != 2:
         return False
     (_, first), (_, second) = sorted(answers)

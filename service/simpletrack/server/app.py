@@ -53,6 +53,7 @@ from simpletrack.server.settings import ServiceSettings, StandbyCopy, Subscribe,
 from simpletrack.server.snapshots import SnapshotWriter, read_all, read_all_ids
 from simpletrack.server.streams import Streams
 from simpletrack.server.subscriptions import Subscriptions, TracksHandlers
+from simpletrack.server.told import Told, read_told
 from simpletrack.server.worker import NAME_RE, Context, Worker
 from simpletrack.session import RouterWatch, open_session, open_session_waiting
 from simpletrack.wire.codec import DecodeLimits, encode
@@ -168,8 +169,12 @@ class Service:
                 self._tokens = SensorTokens(session, self.keys)
                 self._tokens.start(plain=True)
                 shared.fresh = self._tokens.claim_fresh
-            # Whose tracks planners already have: a takeover publishes only past them.
-            # ("owned": per stream, with the detections, server/subscriptions.py.)
+            # Whose tracks planners already have: a takeover publishes only past them. A
+            # sensor's owner tells its standby (server/told.py); the tracks themselves are
+            # heard per stream ("owned", server/subscriptions.py) or all ("wide").
+            self._declared.append(
+                session.declare_subscriber(self.keys.told(s.instance), on_zenoh(self._on_told))
+            )
             if s.subscribe is Subscribe.WIDE:
                 self._declared.append(
                     session.declare_subscriber(self.keys.all_tracks, on_zenoh(self._on_tracks))
@@ -496,6 +501,31 @@ class Service:
         heard = self._heard_stream(sample)
         if heard is not None:
             self._heard_streams.add(*heard, vehicle=True)
+
+    def _on_told(self, sample: zenoh.Sample) -> None:
+        """An owner's word of a tracks message it published on a stream this member stands
+        by for (server/told.py); one for a stream held here is another member's claim."""
+        try:
+            words = read_told(sample.payload.to_bytes())
+            if not words or self._shared is None or len(self.membership.members) <= 1:
+                return
+            for told in words:
+                self._told(told)
+        except Exception:  # a Zenoh callback never raises into Zenoh
+            log.error("told_unreadable", exc=True, key=str(sample.key_expr))
+
+    def _told(self, told: Told) -> None:
+        stream = told.stream
+        if told.instance == self.settings.instance or self.membership.role(stream) is Role.NONE:
+            return
+        if self._workers:
+            worker = self._worker_of(told.vehicle, told.sensor)
+            held = worker.sensors.get(stream)
+            if held is not None:
+                if told.epoch is not None and told.epoch > held.epoch:
+                    worker.supersede(stream)
+                return
+        self._heard_streams.told(told)
 
     def _heard_stream(self, sample: zenoh.Sample) -> tuple[str, bytes] | None:
         """The stream of a tracks sample worth learning from, and the payload (copied out

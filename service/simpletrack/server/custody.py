@@ -141,6 +141,8 @@ class Custody:
         held = self.registry.get(stream)
         if held is None:
             self.machine.checkpoint(stream, snap, item.final)
+            if item.tracks is not None:
+                self.shared.heard.add(stream, item.tracks)
             return []
         if snap.epoch is not None and snap.epoch > held.epoch:
             acts = self.machine.superseded(stream, time.monotonic())
@@ -400,13 +402,21 @@ class Custody:
                 payload,
                 encoding=MSGPACK,
                 congestion_control=zenoh.CongestionControl.BLOCK,
-                attachment=FINAL_CHECKPOINT if final else None,
+                attachment=self._attachment(vehicle, sensor, final),
             )
         except zenoh.ZError as e:
             log.warning("checkpoint_failed", vehicle=vehicle, sensor=sensor, error=str(e))
             return False
         sh.metrics.checkpoint_bytes.inc(len(payload))
         return True
+
+    def _attachment(self, vehicle: str, sensor: str, final: bool) -> bytes | None:
+        """A final checkpoint says so; another carries a sensor's newest tracks message,
+        which its standby does not hear (server/told.py): a failover whose state holds its
+        frame publishes it again (a fused vehicle's standby hears the vehicle's messages)."""
+        if final:
+            return FINAL_CHECKPOINT
+        return None if sensor == VEHICLE_STREAM else self.outbox.last.get((vehicle, sensor))
 
     def housekeeping(self) -> None:
         self.machine.housekeeping(time.monotonic(), self.shared.membership.role)

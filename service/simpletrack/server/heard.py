@@ -2,15 +2,17 @@
 planners have each stream, the ids it holds (a takeover neither repeats nor reuses them) and
 its newest message (a failover whose checkpoint holds that frame publishes it again).
 
-A standby hears every tracks message of its streams. Read one at a time on Zenoh's thread,
-each message paid for its parse with cold caches: at 10 Hz a stream, nothing of the parse's
-code or memory is still warm from the message before, and the read cost a standby about as
-much as Zenoh's receive (docs/BENCHMARKS.md, "What each role costs per frame"). So the Zenoh
-callback judges the message as it comes (server/app.py: the stream's role, whether a worker
-holds it) and keeps it (``add``); the messages are read together, once ``batch`` are
-waiting or ``batch_s`` after the first of them came. Whatever looks at what was heard
-(``get``, ``forget_payloads``) reads the waiting messages first: it never sees less than
-what had arrived when it looked.
+A sensor's standby is told those by its owner, in batches (server/told.py), and gets
+the newest message with each checkpoint; a fused vehicle's standby hears each of the
+vehicle's tracks messages, and an owner those other members put on its streams' keys. Read one
+at a time on Zenoh's thread, each message paid for its parse with cold caches: at 10 Hz a
+stream, nothing of the parse's code or memory is still warm from the message before
+(docs/BENCHMARKS.md, "What each role costs per frame"). So the Zenoh callback judges the
+message as it comes (server/app.py: the stream's role, whether a worker holds it) and keeps
+it (``add``, ``told``); they are read together, once ``batch`` are waiting or ``batch_s``
+after the first of them came. Whatever looks at what was heard (``get``,
+``forget_payloads``) reads the waiting ones first: it never sees less than what had arrived
+when it looked.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from dataclasses import replace
 
 from simpletrack.server.custody_machine import Heard
 from simpletrack.server.logs import get_logger
+from simpletrack.server.told import Told
 from simpletrack.wire.header import peek_heard, peek_vehicle_heard
 
 log = get_logger("heard")
@@ -54,18 +57,26 @@ class HeardStreams:
         self._max_streams = max_streams
         # Held while messages are read: a reader that asks waits for a batch being read.
         self._lock = threading.Lock()
-        self._waiting: list[tuple[str, bytes, bool]] = []
+        self._waiting: list[tuple[str, bytes, bool] | Told] = []
         self._first_at = 0.0
         self._streams: dict[str, Heard] = {}
 
     def add(self, stream: str, payload: bytes, vehicle: bool = False) -> None:
         """A tracks message heard on ``stream``'s key (``vehicle``: a VehicleTrackFrame),
         kept to be read with the next batch."""
+        self._keep((stream, payload, vehicle))
+
+    def told(self, told: Told) -> None:
+        """What a stream's owner told this member, its standby, of a message it published
+        (server/told.py), kept to be read with the next batch."""
+        self._keep(told)
+
+    def _keep(self, entry: tuple[str, bytes, bool] | Told) -> None:
         with self._lock:
             now = self._clock()
             if not self._waiting:
                 self._first_at = now
-            self._waiting.append((stream, payload, vehicle))
+            self._waiting.append(entry)
             if len(self._waiting) >= self._batch or now - self._first_at >= self._batch_s:
                 self._read_waiting()
 
@@ -89,7 +100,11 @@ class HeardStreams:
 
     def _read_waiting(self) -> None:
         waiting, self._waiting = self._waiting, []
-        for stream, payload, vehicle in waiting:
+        for entry in waiting:
+            if isinstance(entry, Told):
+                self._record(entry.stream, entry.stamp_ns, entry.next_id, None, entry.epoch, None)
+                continue
+            stream, payload, vehicle = entry
             try:
                 self._read(stream, payload, vehicle)
             except Exception:  # one bad message must not cost the others theirs
@@ -117,17 +132,20 @@ class HeardStreams:
         next_id: int,
         seq: int | None,
         epoch: int | None,
-        payload: bytes,
+        payload: bytes | None,
     ) -> None:
         old = self._streams.get(stream)
         if old is not None:
-            newer = stamp_ns >= old.stamp_ns
+            if payload is None:  # told: the message kept stays while it is the newest
+                payload = old.payload if stamp_ns <= old.stamp_ns else None
+            else:
+                payload = payload if stamp_ns >= old.stamp_ns else old.payload
             self._streams[stream] = Heard(
                 max(old.stamp_ns, stamp_ns),
                 max(old.next_id, next_id),
                 _top(old.seq, seq),
                 _top(old.epoch, epoch),
-                payload if newer else old.payload,
+                payload,
             )
         elif len(self._streams) < self._max_streams:
             self._streams[stream] = Heard(stamp_ns, next_id, seq, epoch, payload)

@@ -89,6 +89,7 @@ class Inbound:
     # first sample is 0): how many it published before; None for a live frame (not read).
     source_sn: int | None = None
     final: bool = False  # a checkpoint its holder sent as it stopped (FINAL_CHECKPOINT)
+    tracks: bytes | None = None  # a checkpoint's stream's newest tracks message
 
 
 def stamp_of(item: Inbound) -> int | None:
@@ -548,9 +549,19 @@ class Intake:
         key = str(sample.key_expr)
         payload = sample.payload.to_bytes()
         attachment = sample.attachment
-        final = attachment is not None and attachment.to_bytes() == FINAL_CHECKPOINT
+        extra = None if attachment is None else attachment.to_bytes()
+        final = extra == FINAL_CHECKPOINT
+        # Otherwise the stream's newest tracks message (server/told.py): a failover whose
+        # state holds its frame publishes it again.
+        tracks = None if final or not extra else extra
         item = Inbound(
-            key, payload, time.time_ns(), time.perf_counter(), Kind.CHECKPOINT, final=final
+            key,
+            payload,
+            time.time_ns(),
+            time.perf_counter(),
+            Kind.CHECKPOINT,
+            final=final,
+            tracks=tracks,
         )
         self._enqueue(detections_key, item)
 

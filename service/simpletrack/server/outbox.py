@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from simpletrack.server.logs import get_logger
+from simpletrack.server.told import Teller
 from simpletrack.session import Congestion
 from simpletrack.wire.codec import Rejection
 from simpletrack.wire.codec import encode as encode_message
@@ -119,6 +120,7 @@ class Outbox:
         congestion: zenoh.CongestionControl,
         instance: str,
         announcer: Announcer,
+        standby_of: Callable[[str], str | None] | None = None,
     ) -> None:
         self.session, self.keys, self.congestion, self.instance = (
             session,
@@ -126,6 +128,8 @@ class Outbox:
             congestion,
             instance,
         )
+        # Its sensors' standbys told of the messages out (none: a member alone, a test).
+        self.teller = None if standby_of is None else Teller(self, standby_of)
         self.announcer = announcer
         self._tracks: dict[tuple[str, str], zenoh.Publisher] = {}
         # (vehicle, stream) -> its last tracks message: a fence stashes it with the state
@@ -146,8 +150,17 @@ class Outbox:
         """A sensor's tracks; behind its notices still waiting in the announcer, if any (a
         subscriber hears of the sensor's frames in the order they were answered)."""
         key = self.keys.tracks(vehicle, sensor)
-        if not self.announcer.behind(key, payload, (vehicle, sensor)):
+        if self.announcer.behind(key, payload, (vehicle, sensor)):
+            # The standby is told after the message is out (the announcer's order); a full
+            # backlog leaves it untold: it then thinks planners have less, and a failover
+            # publishes again what they had, never less (server/told.py).
+            told = None if self.teller is None else self.teller.message(vehicle, sensor, payload)
+            if told is not None:
+                self.announcer.behind(*told, (vehicle, sensor))
+        else:
             self._publisher(self._tracks, key, (vehicle, sensor)).put(payload)
+            if self.teller is not None:
+                self.teller.published(vehicle, sensor, payload)
         self.last[(vehicle, sensor)] = payload
 
     def vehicle_tracks(self, vehicle: str, payload: bytes) -> None:
@@ -236,6 +249,8 @@ class Outbox:
     def close(self) -> None:
         for name in list(self._tracks):
             self.forget(*name)
+        if self.teller is not None:
+            self.teller.close()
 
 
 Logged = dict[str, Any]  # a refusal's log fields

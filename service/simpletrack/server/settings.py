@@ -369,7 +369,7 @@ class ServiceSettings(BaseSettings):
     )
     subscribe: Subscribe = Field(
         default=Subscribe.OWNED,
-        description="owned: each member hears the frames and tracks of the sensors it owns or stands by for only (a standby: see standby), found from the vehicles' advanced-publisher tokens and, for plain puts, by the group's scout (one member hearing every frame); wide: every member hears every frame and every tracks message (its cost grows with the members)",
+        description="owned: each member hears the frames and tracks of the sensors it owns only (what a standby hears: see standby), found from the vehicles' advanced-publisher tokens and, for plain puts, by the group's scout (one member hearing every frame); wide: every member hears every frame and every tracks message (its cost grows with the members)",
     )
     checkpoint_interval_s: Seconds = Field(
         default=1.0,
@@ -389,7 +389,7 @@ class ServiceSettings(BaseSettings):
     )
     standby: StandbyCopy = Field(
         default=StandbyCopy.CHECKPOINTS,
-        description="what a standby member hears of a sensor (subscribe = owned): checkpoints: the owner's checkpoints and the tracks, not the frames; a takeover replays the frames since the checkpoint from the vehicle's cache (a plain put's sensor, which has none, is still heard whole, as is a sensor its vehicle will fuse while a rolling upgrade keeps fusion off); frames: every frame too, kept since the checkpoint (standby_frames), the cache asked only past them",
+        description="what a standby member hears of a sensor (subscribe = owned): checkpoints: the owner's checkpoints and its word of the tracks it published (stamp, next id, epoch, in batches), not the frames nor the tracks; a takeover replays the frames since the checkpoint from the vehicle's cache (a plain put's sensor, which has none, is still heard whole, as is a sensor its vehicle will fuse while a rolling upgrade keeps fusion off); frames: every frame too, kept since the checkpoint (standby_frames), the cache asked only past them",
     )
     standby_frames: Annotated[int, Field(ge=1, le=100_000)] = Field(
         default=100,

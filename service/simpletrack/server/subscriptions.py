@@ -19,9 +19,11 @@ plain sensor, whose publisher keeps no cache, is heard by its standby too, and s
 its vehicle will fuse once the whole group can (``fuses_later``, a rolling upgrade): the
 copies kept of its own stream are the vehicle's first frames when the gate opens.
 
-The tracks of the same streams are heard per stream, by owner and standby (a standby learns
-how far planners have them; an owner hears whether another member took its stream over),
-from other sessions only: a member's own tracks teach it nothing.
+The tracks of the streams owned are heard per stream (an owner hears whether another member
+took its stream over), and those of the fused vehicles stood by for (how far planners have
+them), from other sessions only: a member's own tracks teach it nothing. A sensor's standby is
+told how far planners have it by its owner (server/told.py), not by its tracks, unless its
+vehicle fuses once the whole group can (a member of before fusion tells nothing).
 
 A publisher's heartbeats (``<detections key>/@adv/pub/<zid>/<eid>/...``, its token's key) reach
 a session through the advanced subscriber's wildcard ``<detections key>/@adv/pub/**``, which
@@ -174,6 +176,17 @@ def hears_frames(role: Role, *, cached: bool, fuses_later: bool, standby_frames:
     return role is Role.OWNER or standby_frames or not cached or fuses_later
 
 
+def hears_tracks(role: Role, *, vehicle: bool, fuses_later: bool) -> bool:
+    """Whether a member subscribes to a stream's tracks key: its owner (another member's
+    message there fences its state); a fused vehicle's standby (how far planners have it,
+    and the vehicle's message seq); a sensor's standby only while its vehicle waits to fuse
+    (a member of before fusion tells nothing); else, a sensor's owner tells its standby
+    (server/told.py)."""
+    if role is Role.NONE:
+        return False
+    return role is Role.OWNER or vehicle or fuses_later
+
+
 class Subscriptions:
     def __init__(
         self,
@@ -277,6 +290,14 @@ class Subscriptions:
             cached=sensor in tokened,
             fuses_later=self._fuses_later(vehicle, name),
             standby_frames=self._standby_frames,
+        )
+
+    def _hears_tracks(self, stream: str) -> bool:
+        vehicle, name = stream.split("/")
+        return hears_tracks(
+            self.membership.role(stream),
+            vehicle=name == VEHICLE_STREAM,
+            fuses_later=self._fuses_later(vehicle, name),
         )
 
     def _run(self) -> None:
@@ -425,8 +446,14 @@ class Subscriptions:
             log.info("plain_sensor_subscribed", vehicle=vehicle, sensor=name, from_scout=extra)
 
     def _reconcile_tracks(self, streams: set[str]) -> None:
+        """The tracks of the streams owned here (another member's message there fences this
+        one's state), of the fused vehicles stood by for, and of the sensors stood by for
+        that their vehicle fuses once the whole group can (a rolling upgrade: a member of
+        before fusion tells nothing, and the vehicle's takeover skips what it answered); a
+        sensor's standby is told by its owner instead (server/told.py)."""
         if self._tracks is None:
             return
+        streams = {s for s in streams if self._hears_tracks(s)}
         for stream in [s for s in self._track_subs if s not in streams]:
             undeclare(self._track_subs.pop(stream))
         for stream in sorted(streams - set(self._track_subs)):
@@ -464,4 +491,5 @@ __all__ = [
     "Subscriptions",
     "TracksHandlers",
     "hears_frames",
+    "hears_tracks",
 ]

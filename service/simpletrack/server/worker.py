@@ -172,7 +172,14 @@ class Worker(threading.Thread):
             state_format=s.state_format,
         )
         self.fused = FusedFrames(self)
-        self.outbox = Outbox(ctx.session, ctx.keys, ctx.congestion, s.instance, ctx.announcer)
+        self.outbox = Outbox(
+            ctx.session,
+            ctx.keys,
+            ctx.congestion,
+            s.instance,
+            ctx.announcer,
+            ctx.shared.membership.standby,
+        )
         self.rules = OrderRules(reset_gap_s=s.reset_gap_s, reset_backward_s=s.reset_backward_s)
         limits = Limits(s.standby_frames, s.fence_after_s, s.fence_hold_s)
         self.custody = Custody(ctx.shared, self.sensors, self.outbox, limits, ctx.burst)
@@ -227,15 +234,16 @@ class Worker(threading.Thread):
 
     # ------------------------------------------------------------------ the loop
     def _wait_s(self, due: float | None) -> float:
-        """How long the loop may wait for an item: until a fused vehicle's next frame is
-        ``due`` (core/reorder.py), or housekeeping."""
+        """How long the loop may wait for an item: until ``due`` (a fused vehicle's next
+        frame, the standbys' words), or housekeeping."""
         if due is None:
             return HOUSEKEEPING_S
         return min(HOUSEKEEPING_S, max(0.0, due - time.monotonic()) + 0.001)
 
     def handle(self, item: Inbound | Dropped | Callable[[], None] | None) -> float | None:
         """One turn of the loop: the item taken from the queue (None: none came in time), then
-        what is due. Returns when a fused vehicle's next frame is due (core/reorder.py)."""
+        what is due. Returns when a fused vehicle's next frame is due (core/reorder.py), or
+        the standbys' waiting words (server/told.py), whichever is first."""
         with self.lock:
             # Before the item: a process stopped past the lease finds itself fenced before it
             # tracks (or publishes) anything from its stale state.
@@ -254,7 +262,15 @@ class Worker(threading.Thread):
             due = self.fused.release_due()
             if time.monotonic() >= self._next_housekeeping:
                 self._housekeeping()
-            return due
+            teller = self.outbox.teller
+            if teller is None:
+                return due
+            # Standbys are told of the messages out FLUSH_S after the first of them
+            # (server/told.py): one message for many, not one each, however they are spread.
+            if teller.due():
+                teller.flush()
+            told = teller.deadline()
+            return told if due is None or (told is not None and told < due) else due
 
     def run(self) -> None:
         due: float | None = None  # read under the lock, where the vehicles' buffers change
