@@ -522,8 +522,7 @@ class Service:
             worker = self._worker_of(told.vehicle, told.sensor)
             held = worker.sensors.get(stream)
             if held is not None:
-                if told.epoch is not None and told.epoch > held.epoch:
-                    worker.supersede(stream)
+                self._supersede_if_newer(worker, stream, held.epoch, told.instance, told.epoch)
                 return
         self._heard_streams.told(told)
 
@@ -553,7 +552,13 @@ class Service:
         member took it over while this one could not see it; this one's state is stale."""
         if self._own_instance in payload:
             return  # this member's own message: the usual case, no parse
-        instance, theirs = peek_custody(payload)
+        self._supersede_if_newer(worker, stream, epoch, *peek_custody(payload))
+
+    def _supersede_if_newer(
+        self, worker: Worker, stream: str, epoch: int, instance: str | None, theirs: int | None
+    ) -> None:
+        """Another member published ``stream`` (or told its standby so) with a higher custody
+        epoch than the one held here: this member's state is stale."""
         if instance != self.settings.instance and theirs is not None and theirs > epoch:
             worker.supersede(stream)
 

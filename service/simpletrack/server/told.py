@@ -132,51 +132,56 @@ class Teller:
         self.session, self.keys, self.congestion = outbox.session, outbox.keys, outbox.congestion
         self.instance, self.standby_of, self.clock = outbox.instance, standby_of, clock
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._waiting: dict[str, dict[str, Word]] = {}  # standby -> stream -> its word
-        self._streams: set[str] = set()  # those with a word waiting
+        self._waiting: dict[str, tuple[str, Word]] = {}  # stream -> (its standby, its word)
         self._first_at = 0.0
 
-    def message(self, vehicle: str, sensor: str, tracks: bytes) -> tuple[str, bytes] | None:
-        """(key, payload) telling the stream's standby of ``tracks`` at once (a message the
-        announcer publishes, behind notices: its word goes after it); None: no standby."""
+    def _word(self, vehicle: str, sensor: str, tracks: bytes) -> tuple[str, Word] | None:
+        """The stream's standby and the word of ``tracks`` (None: no standby, or nothing
+        readable to tell)."""
         standby = self.standby_of(f"{vehicle}/{sensor}")
         if standby is None or standby == self.instance:
             return None
         word = word_of(vehicle, sensor, tracks)
-        if word is None:
+        return None if word is None else (standby, word)
+
+    def message(self, vehicle: str, sensor: str, tracks: bytes) -> tuple[str, bytes] | None:
+        """(key, payload) telling the stream's standby of ``tracks`` at once (a message the
+        announcer publishes, behind notices: its word goes after it); None: no standby."""
+        told = self._word(vehicle, sensor, tracks)
+        if told is None:
             return None
+        standby, word = told
         return self.keys.told(standby), told_payload([word], self.instance)
 
     def published(self, vehicle: str, sensor: str, tracks: bytes) -> None:
         """``tracks`` went out: its word waits for the next flush (this stream's waiting
         word, if any, goes first)."""
+        told = self._word(vehicle, sensor, tracks)
+        if told is None:
+            return
         stream = f"{vehicle}/{sensor}"
-        standby = self.standby_of(stream)
-        if standby is None or standby == self.instance:
-            return
-        word = word_of(vehicle, sensor, tracks)
-        if word is None:
-            return
-        if stream in self._streams:
+        if stream in self._waiting:
             self.flush()
-        if not self._streams:
+        if not self._waiting:
             self._first_at = self.clock()
-        self._waiting.setdefault(standby, {})[stream] = word
-        self._streams.add(stream)
+        self._waiting[stream] = told
 
     def due(self) -> bool:
         """The first word waiting has waited ``FLUSH_S``."""
-        return bool(self._streams) and self.clock() - self._first_at >= FLUSH_S
+        return bool(self._waiting) and self.clock() - self._first_at >= FLUSH_S
 
     def deadline(self) -> float | None:
         """When the words waiting are due (the clock's time; None: none waits)."""
-        return self._first_at + FLUSH_S if self._streams else None
+        return self._first_at + FLUSH_S if self._waiting else None
 
     def flush(self) -> None:
-        waiting, self._waiting = self._waiting, {}
-        self._streams.clear()
-        for standby, words in waiting.items():
-            self.put(self.keys.told(standby), told_payload(list(words.values()), self.instance))
+        """One message per standby member, its streams' words in the order they waited."""
+        by_standby: dict[str, list[Word]] = {}
+        for standby, word in self._waiting.values():
+            by_standby.setdefault(standby, []).append(word)
+        self._waiting.clear()
+        for standby, words in by_standby.items():
+            self.put(self.keys.told(standby), told_payload(words, self.instance))
 
     def put(self, key: str, payload: bytes) -> None:
         """Untold (the session closing), the standby thinks planners have less: a failover

@@ -269,8 +269,7 @@ class Worker(threading.Thread):
             # (server/told.py): one message for many, not one each, however they are spread.
             if teller.due():
                 teller.flush()
-            told = teller.deadline()
-            return told if due is None or (told is not None and told < due) else due
+            return min((t for t in (due, teller.deadline()) if t is not None), default=None)
 
     def run(self) -> None:
         due: float | None = None  # read under the lock, where the vehicles' buffers change
