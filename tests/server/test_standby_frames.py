@@ -36,20 +36,17 @@ def test_who_hears_a_sensors_frames(
 
 
 @pytest.mark.parametrize(
-    ("role", "vehicle", "fuses_later", "hears"),
+    ("role", "fuses_later", "hears"),
     [
-        (OWN, False, False, True),  # another member's message on its key fences the owner
-        (OWN, True, False, True),
-        (STAND, False, False, False),  # its owner tells it, many streams in one message
-        (STAND, True, False, True),  # a fused vehicle's: the vehicle's message seq too
-        (STAND, False, True, True),  # a member of before fusion tells nothing
-        (NO, True, True, False),
+        (OWN, False, True),  # another member's message on its key fences the owner
+        (STAND, False, False),  # its owner tells it, many streams in one message (a fused
+        # vehicle's too, with the vehicle's message seq)
+        (STAND, True, True),  # a member of before fusion tells nothing
+        (NO, True, False),
     ],
 )
-def test_who_hears_a_streams_tracks(
-    role: Role, vehicle: bool, fuses_later: bool, hears: bool
-) -> None:
-    assert hears_tracks(role, vehicle=vehicle, fuses_later=fuses_later) is hears
+def test_who_hears_a_streams_tracks(role: Role, fuses_later: bool, hears: bool) -> None:
+    assert hears_tracks(role, fuses_later=fuses_later) is hears
 
 
 def test_the_default_standby_hears_checkpoints_only() -> None:

@@ -13,7 +13,8 @@ import pytest
 
 from simpletrack.server.heard import HeardStreams
 from simpletrack.server.told import FLUSH_S, Teller, Told, read_told, told_payload, word_of
-from simpletrack.wire.keys import Keys
+from simpletrack.wire import generate
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from tests.server.fake_clock import Clock
 from tests.server.test_heard import OWN, message
 
@@ -30,6 +31,19 @@ def test_what_is_told_is_each_published_message_s_stamp_next_id_and_epoch() -> N
     ]
 
 
+def test_a_fused_vehicle_s_word_tells_its_message_seq_too() -> None:
+    word = word_of("truck-07", VEHICLE_STREAM, generate._vehicle_tracks(epoch=2))
+    assert word == ("truck-07", VEHICLE_STREAM, generate._STAMP_NS, 13, 2, 1042)
+    assert word_of("truck-07", VEHICLE_STREAM, b"\x93garbage") is None
+    told = read_told(told_payload([word], "member-a"))
+    assert told == [Told("truck-07", VEHICLE_STREAM, generate._STAMP_NS, 13, 2, "member-a", 1042)]
+    heard = HeardStreams(OWN, batch=1, clock=Clock())
+    heard.told(told[0])
+    got = heard.get("truck-07/@vehicle")
+    assert got is not None and (got.seq, got.next_id, got.epoch) == (1042, 13, 2)
+    assert got.payload is None
+
+
 GOOD = ["v1", "lidar", 7, 12, 5]
 
 
@@ -38,7 +52,11 @@ GOOD = ["v1", "lidar", 7, 12, 5]
     [
         ["a", [GOOD[:4]]],  # a field short
         ["a", [["v1", "li/dar", 7, 12, 5]]],  # not a name
-        ["a", [["v1", "@vehicle", 7, 12, 5]]],  # a fused vehicle's standby hears its tracks
+        ["a", [["v1", "@vehicle", 7, 12, 5]]],  # a fused vehicle's word without its seq
+        ["a", [["v1", "lidar", 7, 12, 5, 3]]],  # a seq in a sensor's word
+        ["a", [["v1", "@vehicle", 7, 12, 5, -1]]],
+        ["a", [["v1", "@vehicle", 7, 12, 5, "3"]]],
+        ["a", [["v1", "@vehicle", 7, 12, 5, 3, 0]]],
         ["a", [["v1", "lidar", -1, 12, 5]]],
         ["a", [["v1", "lidar", 7, 2**63, 5]]],
         ["a", [["v1", "lidar", 7, 12, "5"]]],
@@ -112,7 +130,12 @@ class _Publisher:
         pass
 
 
-STANDBYS = {"v/lidar": "member-b", "v/radar": "member-c", "w/lidar": "member-b"}
+STANDBYS = {
+    "v/lidar": "member-b",
+    "v/radar": "member-c",
+    "w/lidar": "member-b",
+    "truck-07/@vehicle": "member-b",
+}
 
 
 def _teller(clock: Clock) -> tuple[Teller, _Session]:
@@ -162,6 +185,21 @@ def test_a_stream_s_second_word_sends_the_first_before_it_waits() -> None:
     assert _said(session) == [("member-b", [("v/lidar", 1)]), ("member-c", [("v/radar", 1)])]
     teller.close()  # the worker's end: what waits is said
     assert _said(session)[-1] == ("member-b", [("v/lidar", 2)])
+
+
+def test_a_fused_vehicle_s_words_go_in_a_message_of_their_own() -> None:
+    """A member of before vehicle words refuses a whole message for one word it cannot
+    read: its sensors' words must not ride with a vehicle's."""
+    teller, session = _teller(Clock())
+    teller.published("v", "lidar", message(1, [1]))
+    teller.published("truck-07", VEHICLE_STREAM, generate._vehicle_tracks())
+    teller.published("w", "lidar", message(3, [1]))
+    teller.flush()
+    assert _said(session) == [
+        ("member-b", [("v/lidar", 1), ("w/lidar", 3)]),
+        ("member-b", [("truck-07/@vehicle", generate._STAMP_NS)]),
+    ]
+    assert [w.seq for w in session.put[1][1]] == [1042]
 
 
 def test_a_message_behind_notices_is_told_alone() -> None:

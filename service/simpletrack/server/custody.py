@@ -142,7 +142,7 @@ class Custody:
         if held is None:
             self.machine.checkpoint(stream, snap, item.final)
             if item.tracks is not None:
-                self.shared.heard.add(stream, item.tracks)
+                self.shared.heard.add(stream, item.tracks, snap.sensor == VEHICLE_STREAM)
             return []
         if snap.epoch is not None and snap.epoch > held.epoch:
             acts = self.machine.superseded(stream, time.monotonic())
@@ -411,12 +411,12 @@ class Custody:
         return True
 
     def _attachment(self, vehicle: str, sensor: str, final: bool) -> bytes | None:
-        """A final checkpoint says so; another carries a sensor's newest tracks message,
+        """A final checkpoint says so; another carries the stream's newest tracks message,
         which its standby does not hear (server/told.py): a failover whose state holds its
-        frame publishes it again (a fused vehicle's standby hears the vehicle's messages)."""
+        frame publishes it again."""
         if final:
             return FINAL_CHECKPOINT
-        return None if sensor == VEHICLE_STREAM else self.outbox.last.get((vehicle, sensor))
+        return self.outbox.last.get((vehicle, sensor))
 
     def housekeeping(self) -> None:
         self.machine.housekeeping(time.monotonic(), self.shared.membership.role)

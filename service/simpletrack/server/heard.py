@@ -2,9 +2,9 @@
 planners have each stream, the ids it holds (a takeover neither repeats nor reuses them) and
 its newest message (a failover whose checkpoint holds that frame publishes it again).
 
-A sensor's standby is told those by its owner, in batches (server/told.py), and gets
-the newest message with each checkpoint; a fused vehicle's standby hears each of the
-vehicle's tracks messages, and an owner those other members put on its streams' keys. Read one
+A stream's standby is told those by its owner, in batches (server/told.py), and gets
+the newest message with each checkpoint; an owner hears those other members put on its
+streams' keys (and a sensor's standby, while its vehicle waits to fuse, the sensor's). Read one
 at a time on Zenoh's thread, each message paid for its parse with cold caches: at 10 Hz a
 stream, nothing of the parse's code or memory is still warm from the message before
 (docs/BENCHMARKS.md, "What each role costs per frame"). So the Zenoh callback judges the
@@ -102,7 +102,8 @@ class HeardStreams:
         waiting, self._waiting = self._waiting, []
         for entry in waiting:
             if isinstance(entry, Told):
-                self._record(entry.stream, entry.stamp_ns, entry.next_id, None, entry.epoch, None)
+                t = entry
+                self._record(t.stream, t.stamp_ns, t.next_id, t.seq, t.epoch, None)
                 continue
             stream, payload, vehicle = entry
             try:

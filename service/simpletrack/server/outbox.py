@@ -167,6 +167,8 @@ class Outbox:
         """A fused vehicle's tracks (``<prefix>/<vehicle>/@vehicle/tracks``)."""
         key = self.keys.vehicle_tracks(vehicle)
         self._publisher(self._tracks, key, (vehicle, VEHICLE_STREAM)).put(payload)
+        if self.teller is not None:
+            self.teller.published(vehicle, VEHICLE_STREAM, payload)
         self.last[(vehicle, VEHICLE_STREAM)] = payload
 
     def resend(self, vehicle: str, sensor: str, payload: bytes) -> None:

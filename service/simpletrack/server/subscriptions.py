@@ -176,15 +176,14 @@ def hears_frames(role: Role, *, cached: bool, fuses_later: bool, standby_frames:
     return role is Role.OWNER or standby_frames or not cached or fuses_later
 
 
-def hears_tracks(role: Role, *, vehicle: bool, fuses_later: bool) -> bool:
+def hears_tracks(role: Role, *, fuses_later: bool) -> bool:
     """Whether a member subscribes to a stream's tracks key: its owner (another member's
-    message there fences its state); a fused vehicle's standby (how far planners have it,
-    and the vehicle's message seq); a sensor's standby only while its vehicle waits to fuse
-    (a member of before fusion tells nothing); else, a sensor's owner tells its standby
-    (server/told.py)."""
+    message there fences its state); a sensor's standby only while its vehicle waits to
+    fuse (a member of before fusion tells nothing); else, a stream's owner tells its
+    standby, a fused vehicle's too (server/told.py)."""
     if role is Role.NONE:
         return False
-    return role is Role.OWNER or vehicle or fuses_later
+    return role is Role.OWNER or fuses_later
 
 
 class Subscriptions:
@@ -295,9 +294,7 @@ class Subscriptions:
     def _hears_tracks(self, stream: str) -> bool:
         vehicle, name = stream.split("/")
         return hears_tracks(
-            self.membership.role(stream),
-            vehicle=name == VEHICLE_STREAM,
-            fuses_later=self._fuses_later(vehicle, name),
+            self.membership.role(stream), fuses_later=self._fuses_later(vehicle, name)
         )
 
     def _run(self) -> None:
@@ -447,10 +444,10 @@ class Subscriptions:
 
     def _reconcile_tracks(self, streams: set[str]) -> None:
         """The tracks of the streams owned here (another member's message there fences this
-        one's state), of the fused vehicles stood by for, and of the sensors stood by for
-        that their vehicle fuses once the whole group can (a rolling upgrade: a member of
-        before fusion tells nothing, and the vehicle's takeover skips what it answered); a
-        sensor's standby is told by its owner instead (server/told.py)."""
+        one's state), and of the sensors stood by for that their vehicle fuses once the
+        whole group can (a rolling upgrade: a member of before fusion tells nothing, and the
+        vehicle's takeover skips what it answered); a stream's standby is told by its owner
+        instead (server/told.py)."""
         if self._tracks is None:
             return
         streams = {s for s in streams if self._hears_tracks(s)}

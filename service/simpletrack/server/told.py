@@ -1,5 +1,6 @@
-"""What an owner tells a sensor's standby of the tracks messages it published: each one's
-stamp, next id and epoch, in batches on ``<prefix>/@simpletrack/<standby>/told``.
+"""What an owner tells a stream's standby of the tracks messages it published: each one's
+stamp, next id and epoch (a fused vehicle's: and its message seq), in batches on
+``<prefix>/@simpletrack/<standby>/told``.
 
 A standby needs of a stream's tracks only how far planners have them, the ids they hold and
 the epoch (server/heard.py). Heard as the tracks themselves, the messages cost it ~0.15 ms a
@@ -12,8 +13,10 @@ second word (a stream has at most one word unsaid). Each goes after its message,
 what the standby is told planners may have, they were sent. A failover from a killed or
 stopped owner therefore publishes again the last frame it was told of, and the one after it
 if that was put before its word went: at most two repeats per moved stream, which readers
-drop (``TrackSubscriber``; docs/SCALE.md). A fused vehicle's standby still hears the
-vehicle's tracks (``seq`` too).
+drop (``TrackSubscriber``; docs/SCALE.md). A fused vehicle's words (six fields, its seq
+the sixth) go in messages of their own: a member of before vehicle words, which refuses a
+whole message for one word it cannot read, still learns its sensors' words (and hears the
+vehicle's tracks itself).
 
 The newest message of a stream, which a failover publishes again where the checkpoint holds
 its frame (the dead owner may have put it on some links only), rides on the checkpoint, as
@@ -34,8 +37,8 @@ import msgpack
 import zenoh
 
 from simpletrack.server.logs import get_logger
-from simpletrack.wire.header import peek_heard
-from simpletrack.wire.keys import Keys
+from simpletrack.wire.header import peek_heard, peek_vehicle_heard
+from simpletrack.wire.keys import VEHICLE_STREAM, Keys
 from simpletrack.wire.messages import NAME_PATTERN
 
 __all__ = ["FLUSH_S", "Teller", "Told", "read_told", "told_payload"]
@@ -47,7 +50,8 @@ FLUSH_S = 0.05  # how long the first word waits for others (half a 10 Hz period)
 MAX_WORDS = 10_000  # a message's words at most (a reader refuses more)
 _INT64_MAX = 2**63 - 1
 
-Word = tuple[str, str, int, int, int | None]  # vehicle, sensor, stamp_ns, next_id, epoch
+# vehicle, sensor, stamp_ns, next_id, epoch; a fused vehicle's (sensor VEHICLE_STREAM): seq
+Word = tuple[str, str, int, int, int | None] | tuple[str, str, int, int, int | None, int]
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,6 +64,7 @@ class Told:
     next_id: int
     epoch: int | None
     instance: str  # the owner that published it
+    seq: int | None = None  # a fused vehicle's message seq (None: a sensor's word)
 
     @property
     def stream(self) -> str:
@@ -67,7 +72,14 @@ class Told:
 
 
 def word_of(vehicle: str, sensor: str, tracks: bytes) -> Word | None:
-    """What to tell of the tracks message ``tracks`` (None: unreadable, nothing to tell)."""
+    """What to tell of the tracks message ``tracks`` (None: unreadable, nothing to tell); a
+    fused vehicle's (``sensor`` VEHICLE_STREAM) is a VehicleTrackFrame, its seq told too."""
+    if sensor == VEHICLE_STREAM:
+        read = peek_vehicle_heard(tracks)
+        if read is None:
+            return None
+        stamp, next_id, seq, epoch = read
+        return vehicle, sensor, stamp, next_id, epoch, seq
     heard = peek_heard(tracks)
     if heard is None:
         return None
@@ -94,15 +106,31 @@ def read_told(payload: bytes) -> list[Told] | None:
         return None
     out: list[Told] = []
     for w in words:
-        if not isinstance(w, list) or len(w) != 5:
+        told = _told(w, instance)
+        if told is None:
             return None
-        vehicle, sensor, stamp_ns, next_id, epoch = w
-        if not all(isinstance(n, str) and NAME_RE.fullmatch(n) for n in (vehicle, sensor)):
-            return None
-        if not (_int64(stamp_ns) and _int64(next_id) and (epoch is None or _int64(epoch))):
-            return None
-        out.append(Told(vehicle, sensor, stamp_ns, next_id, epoch, instance))
+        out.append(told)
     return out
+
+
+def _told(w: object, instance: str) -> Told | None:
+    """A sensor's word (5 fields) or a fused vehicle's (6: its sensor VEHICLE_STREAM, its
+    seq last); None for anything else."""
+    if not isinstance(w, list) or len(w) not in (5, 6):
+        return None
+    vehicle, sensor, stamp_ns, next_id, epoch = w[:5]
+    if not (isinstance(vehicle, str) and NAME_RE.fullmatch(vehicle) and isinstance(sensor, str)):
+        return None
+    seq = None
+    if len(w) == 6:
+        seq = w[5]
+        if sensor != VEHICLE_STREAM or not _int64(seq):
+            return None
+    elif not NAME_RE.fullmatch(sensor):
+        return None
+    if not (_int64(stamp_ns) and _int64(next_id) and (epoch is None or _int64(epoch))):
+        return None
+    return Told(vehicle, sensor, stamp_ns, next_id, epoch, instance, seq)
 
 
 def _int64(v: object) -> bool:
@@ -175,12 +203,13 @@ class Teller:
         return self._first_at + FLUSH_S if self._waiting else None
 
     def flush(self) -> None:
-        """One message per standby member, its streams' words in the order they waited."""
-        by_standby: dict[str, list[Word]] = {}
+        """One message per standby member, its streams' words in the order they waited (its
+        fused vehicles' in one more: see the module's docstring)."""
+        by_standby: dict[tuple[str, bool], list[Word]] = {}
         for standby, word in self._waiting.values():
-            by_standby.setdefault(standby, []).append(word)
+            by_standby.setdefault((standby, len(word) == 6), []).append(word)
         self._waiting.clear()
-        for standby, words in by_standby.items():
+        for (standby, _), words in by_standby.items():
             self.put(self.keys.told(standby), told_payload(words, self.instance))
 
     def put(self, key: str, payload: bytes) -> None:
