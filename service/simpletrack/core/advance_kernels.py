@@ -24,7 +24,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.jit import kernel
+from simpletrack.core.jit import inline, kernel
 from simpletrack.core.kalman_kernels import update_into, wrap_once
 
 __all__ = [
@@ -42,6 +42,7 @@ __all__ = [
     "REVIVE",
     "SCORE_DECAY",
     "advance",
+    "policy_shows",
 ]
 
 # Columns of the per-class option table (Tracker builds it once from its config).
@@ -51,6 +52,17 @@ FUSED, SCORE_DECAY, MIN_HITS, MAX_AGE, DELETE_BELOW, MAX_POSITION_STD, COAST_OUT
 N_OPTIONS = 8
 # Output policies (config.OutputPolicy), as the kernel reads them.
 POLICY_PAPER, POLICY_REFERENCE, POLICY_NUSCENES = range(3)
+
+
+@inline
+def policy_shows(policy: int, tentative: bool, confirmed: bool, matched: bool) -> bool:
+    """Whether the output policy reports a track (before coasting and the lost rule)."""
+    if policy == POLICY_NUSCENES:
+        return True
+    if policy == POLICY_REFERENCE:
+        return tentative or (confirmed and matched)
+    return confirmed and matched
+
 
 # lifecycle.TrackState and UpdateKind codes (kernels cannot read enums).
 _TENTATIVE, _CONFIRMED, _DEAD = 0, 1, 2
@@ -288,12 +300,7 @@ def advance(
     for j in range(m):
         matched = o_up[j] == _MATCHED
         confirmed = o_st[j] == _CONFIRMED
-        if policy == POLICY_NUSCENES:
-            kp = True
-        elif policy == POLICY_REFERENCE:
-            kp = o_st[j] == _TENTATIVE or (confirmed and matched)
-        else:
-            kp = confirmed and matched
+        kp = policy_shows(policy, o_st[j] == _TENTATIVE, confirmed, matched)
         c = o_cls[j]
         if options[c, REVIVE] > 0.0 and o_ts[j] >= options[c, MAX_AGE]:
             kp = False  # lost: reported again once re-matched

@@ -66,6 +66,7 @@ _KERNEL_MODULES = (
     "simpletrack.core.output_kernels",
     "simpletrack.core.packing_kernels",
     "simpletrack.core.input_kernels",
+    "simpletrack.core.fused_kernels",
 )
 _HELPER_MARK = "__simpletrack_jit_helper__"
 _PLAIN_MARK = "__simpletrack_jit_plain__"

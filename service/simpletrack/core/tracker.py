@@ -84,7 +84,7 @@ from simpletrack.core.step_kernels import MAX_AGE as ASSOC_MAX_AGE
 # Both are read; a reader from before 2 refuses a state of 2 ("unsupported ... format").
 STATE_FORMAT = 2
 STATE_FORMATS = (1, 2)
-_POLICY_CODES = {
+POLICY_CODES = {
     OutputPolicy.PAPER: POLICY_PAPER,
     OutputPolicy.REFERENCE: POLICY_REFERENCE,
     OutputPolicy.NUSCENES: POLICY_NUSCENES,
@@ -157,7 +157,7 @@ class Tracker:
             assoc[code, REVIVE_FRAMES] = c.revive_frames
             assoc[code, REVIVE_GATE] = _or(c.revive_gate, np.inf)
         self._association = assoc
-        self._policy = _POLICY_CODES[config.output]
+        self._policy = POLICY_CODES[config.output]
         # An ordinary frame in one compiled call (core/step_kernels.py) unless a class is
         # measured in numpy; the staged path below is the same arithmetic, step by step.
         self._fused = not self._numpy_metric.any()

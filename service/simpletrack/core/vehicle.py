@@ -48,14 +48,15 @@ from simpletrack.core import calibration
 from simpletrack.core.boxes import Boxes, transform_boxes
 from simpletrack.core.config import ClassConfig, MotionModel, OutputPolicy, TrackerConfig
 from simpletrack.core.frames import POS_VEL, Frame, Tracks
+from simpletrack.core.fused_kernels import fused_columns, report_rows
 from simpletrack.core.fusion_config import EXISTENCE_FLOOR, FusionConfig, SensorTrust
 from simpletrack.core.kalman_kernels import predict_all
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.motion import KalmanFilter, predicted_boxes
 from simpletrack.core.occlusion import occlusion
 from simpletrack.core.state import TrackTable, pack, pack_array, unpack, unpack_array
+from simpletrack.core.tracker import POLICY_CODES, Tracker
 from simpletrack.core.tracker import STATE_FORMAT as TRACKER_STATE_FORMAT
-from simpletrack.core.tracker import Tracker
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -229,7 +230,10 @@ class VehicleTracker:
         }
         self._kf = KalmanFilter(config.kalman)
         classes = config.class_names
-        self._coast = np.array([config.for_code(c).coast_output for c in range(len(classes))])
+        self._coast = np.array(
+            [config.for_code(c).coast_output for c in range(len(classes))], dtype=np.int64
+        )
+        self._policy = POLICY_CODES[config.output]
         self._min_score = {s: np.array(t.min_score_of(classes)) for s, t in fusion.sensors.items()}
         self._r = {s: None if t.r is None else np.eye(7) * t.r for s, t in fusion.sensors.items()}
         self._spawn = {
@@ -532,46 +536,13 @@ class VehicleTracker:
     ) -> FusedColumns:
         """The fused columns of the tracks in view after this frame (``new``'s rows);
         ``hidden_before``: the tracks before it (``before_ids``) hidden from the sensor."""
-        n, n_s = len(new), len(self.sensors)
-        pos = np.searchsorted(before_ids, new.ids)
-        pos = np.minimum(pos, max(before_ids.size - 1, 0))
-        old = ~born
-        misses = np.full((n, n_s), -1, dtype=np.int32)
-        stamps = np.full((n, n_s), -1, dtype=np.int64)
-        kind = np.full(n, UpdateKind.MATCHED, dtype=np.int8)
-        odds = np.zeros(n)
-        occluded = np.zeros(n, dtype=np.int32)
-        hidden = np.zeros(n, dtype=bool)
-        if before_ids.size:
-            misses[old] = before.misses[pos[old]]
-            stamps[old] = before.stamp_ns[pos[old]]
-            kind[old] = before.last_kind[pos[old]]
-            odds[old] = before.log_odds[pos[old]]
-            occluded[old] = before.occluded[pos[old]]
-            hidden[old] = hidden_before[pos[old]]
-        upd = new.update
-        updated = old & (upd != UpdateKind.COASTED)
-        coasted = old & (upd == UpdateKind.COASTED) & ~hidden
-        unseen = old & (upd == UpdateKind.COASTED) & hidden
-        occluded[updated | coasted] = 0
-        if inp.key_frame:
-            occluded[unseen] += 1
         trust = self.fusion.sensors[inp.sensor]
-        if inp.key_frame:
-            misses[updated] = -1
-            misses[updated, s] = 0
-            misses[coasted, s] = np.maximum(misses[coasted, s], 0) + 1
-            odds[coasted] += math.log1p(-trust.detection_probability)
-        stamps[updated, s] = inp.stamp_ns
-        kind[updated] = upd[updated]
-        matched = old & (upd == UpdateKind.MATCHED)
-        odds[matched] += self._evidence(new.match_score[matched], trust.existence, trust)
-        misses[born] = -1
-        misses[born, s] = 0
-        stamps[born] = -1
-        stamps[born, s] = inp.stamp_ns
-        odds[born] = self._evidence(new.match_score[born], trust.existence, trust)
-        np.clip(odds, -_LOGIT_MAX, _LOGIT_MAX, out=odds)
+        misses, stamps, kind, odds, occluded = fused_columns(
+            before.misses, before.stamp_ns, before.last_kind, before.log_odds, before.occluded,
+            hidden_before, before_ids, new.ids, born, new.update,
+            self._evidence(new.match_score, trust.existence, trust), s, bool(inp.key_frame),
+            inp.stamp_ns, math.log1p(-trust.detection_probability), _LOGIT_MAX,
+        )  # fmt: skip
         return FusedColumns(misses, stamps, kind, odds, occluded)
 
     @staticmethod
@@ -595,34 +566,13 @@ class VehicleTracker:
         updated it and missed by none. With one sensor: matched on this frame."""
         table, cols = self.tracker.tracks, self.cols
         n = len(table)
-        order = np.argsort(out.ids, kind="stable")
-        pos = np.minimum(np.searchsorted(out.ids[order], table.ids), max(len(out) - 1, 0))
-        where = order[pos] if len(out) else pos
-        in_step = (out.ids[where] == table.ids) if len(out) else np.zeros(n, dtype=bool)
         tsu = table.time_since_update
-        kind = np.full(n, UpdateKind.COASTED, dtype=np.int8)
-        kind[in_step] = out.update[where[in_step]]
-        others = np.delete(cols.stamp_ns, s, axis=1).max(axis=1, initial=-1)
-        since = (
-            (tsu == 0) & (kind == UpdateKind.COASTED) & (~in_step | (others > cols.stamp_ns[:, s]))
-        )
-        kind = np.where(since, cols.last_kind, kind).astype(np.int8)
-        fresh = kind == UpdateKind.MATCHED
-        confirmed = table.state == TrackState.CONFIRMED
-        window = self._coast[table.cls]
-        coast = confirmed & ~fresh & (window > 0) & (tsu <= window)
-        policy = self.config.output
-        if policy is OutputPolicy.NUSCENES:
-            keep = np.ones(n, dtype=bool)
-        elif policy is OutputPolicy.REFERENCE:
-            keep = (table.state == TrackState.TENTATIVE) | (confirmed & fresh)
-        else:
-            keep = confirmed & fresh
-        keep |= coast
-        keep &= fresh | (cols.occluded == 0)  # kept alive while hidden, shown when seen again
-        if self.fusion.min_existence > 0:  # a tentative track needs the evidence first
-            doubtful = cols.log_odds < _logit(self.fusion.min_existence)
-            keep &= ~(doubtful & (table.state == TrackState.TENTATIVE))
+        min_e = self.fusion.min_existence
+        kind, fresh, coast, keep, where, in_step = report_rows(
+            out.ids, out.update, table.ids, tsu, cols.stamp_ns, cols.last_kind, s, table.state,
+            table.cls, self._coast, cols.occluded, cols.log_odds, self._policy, min_e > 0,
+            _logit(min_e) if min_e > 0 else 0.0,
+        )  # fmt: skip
         rows = np.flatnonzero(keep)
         kalman = self.config.motion is MotionModel.KALMAN
         box = np.empty((n, 7))
