@@ -29,12 +29,15 @@ from simpletrack.wire.convert import (
     boxes_to_wire,
     frame_from_wire,
     pack_tracks_checked,
+    pack_vehicle_tracks_checked,
     track_boxes_from_wire,
     tracks_from_wire,
     tracks_to_wire,
+    vehicle_tracks_to_wire,
     wire_states,
 )
 from simpletrack.wire.reasons import ErrorReason
+from simpletrack.wire.vehicle_tracks import decode_vehicle_track_frame, encode_vehicle_track_frame
 
 CLASSES = ("Car", "Pedestrian")
 F32, F64, I32, I64 = np.float32, np.float64, np.int32, np.int64
@@ -381,6 +384,63 @@ def test_the_packed_tracks_are_the_encoders_bytes_with_the_guards_finding(
             assert got == expected, (len(tracks.ids), version, epoch)
     assert found > 100  # most poisoned ones are refused (not: values rounding into range, a
     # covariance entry below the diagonal)
+
+
+VEHICLE: dict[str, Any] = {
+    "vehicle": "v7",
+    "seq": 2**33,
+    "stamp_ns": 1_700_000_000_123_456_789,
+    "sensor_seq": 12,
+    "frame_id": "base_link",
+    "instance": "tracker-0",
+    "received_ns": 1_700_000_000_200_000_000,
+    "published_ns": 1_700_000_000_210_000_000,
+}
+
+
+@pytest.mark.parametrize("covariance", [True, False])
+def test_a_vehicle_s_packed_tracks_are_the_encoders_bytes(covariance: bool) -> None:
+    """pack_vehicle_tracks_checked gives the bytes encode_vehicle_track_frame writes for
+    vehicle_tracks_to_wire's columns (the map's size moving from a fixmap to map 16 and
+    within it, with and without an epoch, a pose, 1-3 sensors); None where a value is NaN
+    or inf (the columns' way then names it); ValueError for a misshapen column."""
+    if not jit.compiled():
+        assert (
+            pack_vehicle_tracks_checked(three_tracks(), np.ones(3), np.ones((3, 1)), CLASSES, 1)
+            is None
+        )
+        pytest.skip("kernels run uncompiled: the service takes vehicle_tracks_to_wire then")
+    rng = np.random.default_rng(6)
+    for k, n in enumerate((0, 1, 7, 128, 140, 3200)):
+        tracks = random_tracks(n, covariance, n)
+        sensors = ["lidar", "camera", "radar"][: 1 + k % 3]
+        existence = rng.uniform(0, 1, n)
+        stamps = rng.integers(-1, 2**62, (n, len(sensors)))
+        packed = pack_vehicle_tracks_checked(tracks, existence, stamps, CLASSES, len(sensors))
+        assert packed is not None
+        wire = vehicle_tracks_to_wire(tracks, existence, stamps, CLASSES)
+        for epoch in (None, 0, 2**63 - 1):
+            args = dict(
+                VEHICLE, sensor=sensors[0], sensors=sensors, sensor_state=["ok"] * len(sensors),
+                pose=None if k % 2 else [float(v) for v in range(16)], epoch=epoch,
+            )  # fmt: skip
+            got = encode_vehicle_track_frame(**args, tracks=packed)
+            assert got == encode_vehicle_track_frame(**args, tracks=wire), (n, epoch)
+            decoded = decode_vehicle_track_frame(got)
+            assert not isinstance(decoded, Rejection) and decoded[0].epoch == epoch
+    tracks = random_tracks(5, covariance, 5)
+    existence, stamps = rng.uniform(0, 1, 5), np.zeros((5, 2), np.int64)
+    for bad in (np.nan, np.inf):
+        poisoned_existence = existence.copy()
+        poisoned_existence[3] = bad
+        assert pack_vehicle_tracks_checked(tracks, poisoned_existence, stamps, CLASSES, 2) is None
+    nan_score = dataclasses.replace(tracks.boxes, score=np.full(5, np.nan))
+    nan_tracks = dataclasses.replace(tracks, boxes=nan_score)
+    assert pack_vehicle_tracks_checked(nan_tracks, existence, stamps, CLASSES, 2) is None
+    with pytest.raises(ValueError, match="sensor_stamp_ns"):
+        pack_vehicle_tracks_checked(tracks, existence, stamps, CLASSES, 3)
+    with pytest.raises(ValueError, match="existence"):
+        pack_vehicle_tracks_checked(tracks, existence[:4], stamps, CLASSES, 2)
 
 
 def test_packed_tracks_need_a_version() -> None:

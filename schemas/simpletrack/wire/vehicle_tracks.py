@@ -109,7 +109,7 @@ def encode_vehicle_track_frame(
     published_ns: int,
     sensors: Sequence[str],
     sensor_state: Sequence[SensorCondition | str],
-    tracks: TrackArrays,
+    tracks: TrackArrays | bytes,
     epoch: int | None = None,
 ) -> bytes:
     """A ``VehicleTrackFrame``; ``tracks`` must hold ``age_s``, ``time_since_update_s``,
@@ -117,7 +117,8 @@ def encode_vehicle_track_frame(
     in a TrackFrame). Version 2 with an ``epoch``; without one version 1, byte for byte what
     an encoder of before the epoch wrote. ValueError for a missing or misshapen column, an
     unknown sensor state, repeated sensors, states not one per sensor, ``sensor`` not among
-    ``sensors``, or an epoch outside [0, 2**63 - 1]."""
+    ``sensors``, or an epoch outside [0, 2**63 - 1]. ``tracks`` as bytes is the ``tracks`` map
+    packed already (wire/convert.py ``pack_vehicle_tracks_checked``), put in as it is."""
     check_epoch(epoch)
     names = [str(s) for s in sensors]
     states = [SensorCondition(s).value for s in sensor_state]
@@ -125,14 +126,9 @@ def encode_vehicle_track_frame(
         _check_sensors(sensor, names, states)
     except Reject as r:
         raise ValueError(f"VehicleTrackFrame.{r.field}: {r.detail}") from None
-    columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
-    for spec in VEHICLE_TRACK_COLUMNS:
-        values = getattr(tracks, spec.name)
-        if values is None:
-            if not spec.optional:
-                raise ValueError(f"a VehicleTrackFrame needs {spec.name}")
-            continue
-        columns[spec.name] = to_column(values, spec, len(names))
+    columns: dict[str, Any] | bytes = (
+        tracks if isinstance(tracks, bytes) else _columns(tracks, names)
+    )
     msg: dict[str, Any] = {
         "schema_version": 1 if epoch is None else VEHICLE_TRACK_SCHEMA_VERSION,
         "vehicle": vehicle,
@@ -149,6 +145,26 @@ def encode_vehicle_track_frame(
         "sensor_state": states,
         "tracks": columns,
     }
+    if isinstance(columns, bytes):  # the map msgpack writes, with these bytes as its tracks
+        del msg["tracks"]  # the last entry but the epoch: the 13 before it packed as a map
+        entries = len(msg) + 1 + (epoch is not None)  # a fixmap still (at most 15)
+        tail = b"" if epoch is None else _EPOCH_KEY + pack(epoch)
+        return b"".join((bytes([0x80 | entries]), pack(msg)[1:], _TRACKS_KEY, columns, tail))
     if epoch is not None:
         msg["epoch"] = epoch
     return pack(msg)
+
+
+_TRACKS_KEY, _EPOCH_KEY = pack("tracks"), pack("epoch")
+
+
+def _columns(tracks: TrackArrays, names: list[str]) -> dict[str, Any]:
+    columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
+    for spec in VEHICLE_TRACK_COLUMNS:
+        values = getattr(tracks, spec.name)
+        if values is None:
+            if not spec.optional:
+                raise ValueError(f"a VehicleTrackFrame needs {spec.name}")
+            continue
+        columns[spec.name] = to_column(values, spec, len(names))
+    return columns

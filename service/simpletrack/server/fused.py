@@ -26,7 +26,13 @@ from simpletrack.server.sensors import (
 )
 from simpletrack.server.vehicles import VehicleState, Waiting
 from simpletrack.wire.codec import Rejection, decode_detection_frame
-from simpletrack.wire.convert import boxes_from_wire, detection_extents, vehicle_tracks_to_wire
+from simpletrack.wire.columns import TrackArrays
+from simpletrack.wire.convert import (
+    boxes_from_wire,
+    detection_extents,
+    pack_vehicle_tracks_checked,
+    vehicle_tracks_to_wire,
+)
 from simpletrack.wire.keys import VEHICLE_STREAM
 from simpletrack.wire.reasons import ErrorReason
 from simpletrack.wire.vehicle_tracks import encode_vehicle_track_frame
@@ -213,8 +219,18 @@ class FusedFrames:
             return  # watched (verification) or re-processed: no message of its own
         vt = result.tracks
         state.last = arrival
-        wire = vehicle_tracks_to_wire(vt.tracks, vt.existence, vt.sensor_stamp_ns, ctx.classes)
-        refusal = non_finite_refusal(wire, arrival.seq, arrival.stamp_ns)
+        # The message's tracks map packed in one compiled call with the finite guard's look
+        # (server/worker.py does the same for a sensor's); None: the columns' way, whose
+        # guard names a NaN or inf.
+        tracks: TrackArrays | bytes | None = pack_vehicle_tracks_checked(
+            vt.tracks, vt.existence, vt.sensor_stamp_ns, ctx.classes, len(state.tracker.sensors)
+        )
+        refusal = None
+        if tracks is None:
+            tracks = vehicle_tracks_to_wire(
+                vt.tracks, vt.existence, vt.sensor_stamp_ns, ctx.classes
+            )
+            refusal = non_finite_refusal(tracks, arrival.seq, arrival.stamp_ns)
         if refusal is not None:  # never published: subscribers' decoders refuse NaN and inf
             log.error("non_finite_tracks", vehicle=state.vehicle, sensor=sensor,
                       seq=arrival.seq, field=refusal.field)  # fmt: skip
@@ -242,7 +258,7 @@ class FusedFrames:
             published_ns=time.time_ns(),
             sensors=list(state.tracker.sensors),
             sensor_state=conditions,
-            tracks=wire,
+            tracks=tracks,
             epoch=state.epoch,
         )
         if not quiet:
@@ -253,10 +269,11 @@ class FusedFrames:
         m.observe_end_to_end(arrival.stamp_ns, item.received_ns, now_ns, state.vehicle)
         m.service_latency.observe((now_ns - item.received_ns) * 1e-9)
         m.count_tracked(state.vehicle)
-        m.active_tracks.inc(state.tracked(len(wire)))
+        n_tracks = len(vt.tracks.ids)
+        m.active_tracks.inc(state.tracked(n_tracks))
         if log.enabled(logging.DEBUG):
             log.debug("vehicle_tracked", vehicle=state.vehicle, sensor=sensor, seq=vt.seq,
-                      tracks=len(wire), ms=round((t3 - t1) * 1e3, 3))  # fmt: skip
+                      tracks=n_tracks, ms=round((t3 - t1) * 1e3, 3))  # fmt: skip
 
     def _gap(self, state: VehicleState, arrival: Arrival) -> bool:
         """The vehicle's gap rule (every sensor silent over reset_gap_s): bridged when the
