@@ -542,7 +542,8 @@ def encode_track_frame(
         "published_ns": published_ns,
     }
     if isinstance(tracks, bytes):
-        return _packed_track_frame(msg, tracks, epoch)
+        with_epoch = epoch is not None and schema_version >= TRACK_EPOCH_SCHEMA_VERSION
+        return packed_around(msg, tracks, epoch if with_epoch else None)
     columns: dict[str, Any] = {"count": len(tracks), "classes": list(tracks.classes)}
     for spec, dtype in _TRACK_DTYPES[schema_version]:
         values = getattr(tracks, spec.name)
@@ -571,16 +572,16 @@ def encode_track_frame(
     return pack(msg)
 
 
-def _packed_track_frame(header: dict[str, Any], tracks: bytes, epoch: int | None) -> bytes:
-    """A TrackFrame whose ``tracks`` map is packed already: ``header`` (its 11 entries before
-    ``tracks``, a fixmap) packed around it; the bytes msgpack writes for the whole map."""
-    head = pack(header)
-    if epoch is not None and header["schema_version"] >= TRACK_EPOCH_SCHEMA_VERSION:
-        return b"".join((_FIXMAP_13, head[1:], _TRACKS_KEY, tracks, _EPOCH_KEY, pack(epoch)))
-    return b"".join((_FIXMAP_12, head[1:], _TRACKS_KEY, tracks))
+def packed_around(header: dict[str, Any], tracks: bytes, epoch: int | None) -> bytes:
+    """A track message (TrackFrame, VehicleTrackFrame) whose ``tracks`` map is packed
+    already: ``header`` (the entries before ``tracks``, at most 13: a fixmap), then
+    ``tracks``, then the ``epoch`` where there is one; the bytes msgpack writes for the whole
+    map."""
+    entries = len(header) + 1 + (epoch is not None)
+    tail = b"" if epoch is None else _EPOCH_KEY + pack(epoch)
+    return b"".join((bytes([0x80 | entries]), pack(header)[1:], _TRACKS_KEY, tracks, tail))
 
 
-_FIXMAP_12, _FIXMAP_13 = bytes([0x80 | 12]), bytes([0x80 | 13])
 _TRACKS_KEY, _EPOCH_KEY = pack("tracks"), pack("epoch")
 
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.wire.codec import check_epoch, pack
+from simpletrack.wire.codec import check_epoch, pack, packed_around
 from simpletrack.wire.columns import VEHICLE_TRACK_COLUMNS, TrackArrays, to_column
 from simpletrack.wire.decoding import (
     DEFAULT_LIMITS,
@@ -126,9 +126,6 @@ def encode_vehicle_track_frame(
         _check_sensors(sensor, names, states)
     except Reject as r:
         raise ValueError(f"VehicleTrackFrame.{r.field}: {r.detail}") from None
-    columns: dict[str, Any] | bytes = (
-        tracks if isinstance(tracks, bytes) else _columns(tracks, names)
-    )
     msg: dict[str, Any] = {
         "schema_version": 1 if epoch is None else VEHICLE_TRACK_SCHEMA_VERSION,
         "vehicle": vehicle,
@@ -143,19 +140,13 @@ def encode_vehicle_track_frame(
         "published_ns": published_ns,
         "sensors": names,
         "sensor_state": states,
-        "tracks": columns,
     }
-    if isinstance(columns, bytes):  # the map msgpack writes, with these bytes as its tracks
-        del msg["tracks"]  # the last entry but the epoch: the 13 before it packed as a map
-        entries = len(msg) + 1 + (epoch is not None)  # a fixmap still (at most 15)
-        tail = b"" if epoch is None else _EPOCH_KEY + pack(epoch)
-        return b"".join((bytes([0x80 | entries]), pack(msg)[1:], _TRACKS_KEY, columns, tail))
+    if isinstance(tracks, bytes):
+        return packed_around(msg, tracks, epoch)
+    msg["tracks"] = _columns(tracks, names)
     if epoch is not None:
         msg["epoch"] = epoch
     return pack(msg)
-
-
-_TRACKS_KEY, _EPOCH_KEY = pack("tracks"), pack("epoch")
 
 
 def _columns(tracks: TrackArrays, names: list[str]) -> dict[str, Any]:

@@ -170,7 +170,7 @@ class Service:
                 self._tokens.start(plain=True)
                 shared.fresh = self._tokens.claim_fresh
             # Whose tracks planners already have: a takeover publishes only past them. A
-            # sensor's owner tells its standby (server/told.py); the tracks themselves are
+            # stream's owner tells its standby (server/told.py); the tracks themselves are
             # heard per stream ("owned", server/subscriptions.py) or all ("wide").
             self._declared.append(
                 session.declare_subscriber(self.keys.told(s.instance), on_zenoh(self._on_told))

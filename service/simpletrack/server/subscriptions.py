@@ -20,10 +20,10 @@ its vehicle will fuse once the whole group can (``fuses_later``, a rolling upgra
 copies kept of its own stream are the vehicle's first frames when the gate opens.
 
 The tracks of the streams owned are heard per stream (an owner hears whether another member
-took its stream over), and those of the fused vehicles stood by for (how far planners have
-them), from other sessions only: a member's own tracks teach it nothing. A sensor's standby is
-told how far planners have it by its owner (server/told.py), not by its tracks, unless its
-vehicle fuses once the whole group can (a member of before fusion tells nothing).
+took its stream over), from other sessions only: a member's own tracks teach it nothing. A
+stream's standby, a fused vehicle's too, is told how far planners have it by its owner
+(server/told.py), not by its tracks, unless it is a sensor whose vehicle fuses once the
+whole group can (a member of before fusion tells nothing).
 
 A publisher's heartbeats (``<detections key>/@adv/pub/<zid>/<eid>/...``, its token's key) reach
 a session through the advanced subscriber's wildcard ``<detections key>/@adv/pub/**``, which
