@@ -330,15 +330,28 @@ class Receiver:
             if self.window_start is not None and self.window_start <= now:
                 self.in_window += 1
 
+    def _named(self, sample: zenoh.Sample, payload: bytes) -> list[tuple[int, int]]:
+        """The frames of this process a refusal names: its ``seq``, or every one of its
+        ``seqs`` (a notice of frames shed under load names them all, the first as ``seq``)."""
+        at = self._index(sample, payload)
+        if at is None:
+            return []
+        seqs = peek(payload, "seqs")
+        if not isinstance(seqs, list):
+            return [at]
+        row, ticks = at[0], self.spec.ticks
+        return [(row, s) for s in seqs if isinstance(s, int) and 0 <= s < ticks]
+
     def on_errors(self, sample: zenoh.Sample) -> None:
         self.threads.add(threading.get_native_id())
         payload = sample.payload.to_bytes()
         reason = str(peek(payload, "reason"))
-        at = self._index(sample, payload)
+        named = self._named(sample, payload)
         with self.lock:
-            self.errors += 1
-            self.reasons[reason] += 1
-            if at is not None:
+            # A refusal per frame named (one naming none of this load's frames counts once).
+            self.errors += max(1, len(named))
+            self.reasons[reason] += max(1, len(named))
+            for at in named:
                 self.refused[at] = True
                 if self.spec.record_answers:
                     self.refusals.append((self.first + at[0], at[1], reason))
@@ -514,8 +527,9 @@ def _result(spec: LoadSpec, sched: Schedule, recv: Receiver) -> dict[str, Any]:
             "received": recv.received,
             "refused": recv.errors,
             "refused_by_reason": dict(recv.reasons),
-            # Members of a group may each refuse the same frame: never below zero.
-            "lost": max(0, int(sent_ns.size - recv.received - recv.errors)),
+            # Frames neither tracked nor named by a refusal: a frame refused by two members
+            # of a group, or tracked and named in a failover's notice, counts once.
+            "lost": int(sent_ns.size - np.count_nonzero((recv.recv_ns != 0) | recv.refused)),
             "unexpected": recv.unexpected,
             "window_sent": int(sent_ns[:, w:].size),
             "window_received": int(ok.sum()),

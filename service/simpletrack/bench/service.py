@@ -493,6 +493,15 @@ def measure_step(
             "dropped": _counters(m2, "simpletrack_frames_dropped_total"),
             "window_stage_ms": _stage_means(m0, m1),
             "fusion_frames": _counters(m2, "simpletrack_fusion_frames_total"),
+            # Sensors that changed member since the start: a step whose frames are both
+            # refused and tracked, or repeated, reads with these (a takeover tracks again).
+            "moved": {
+                "handoffs": sum(_counters(m2, "simpletrack_handoffs_total").values()),
+                "failovers": m2.get("simpletrack_failovers_total", 0.0),
+                "fences": sum(_counters(m2, "simpletrack_fences_total").values()),
+                "replayed_frames": m2.get("simpletrack_replayed_frames_total", 0.0),
+            },
+            "notices_dropped": m2.get("simpletrack_error_notices_dropped_total", 0.0),
         }
     if profile is not None:
         if opts.profile_gil and "samples" in profile:
