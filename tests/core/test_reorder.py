@@ -87,3 +87,17 @@ def test_a_sensor_assumed_heard_is_waited_for_as_one_heard() -> None:
     assumed.assume_heard("lidar", 2_500, now=10.0)
     assumed.push("camera", 29, 2_900, 29, now=11.5)
     assert assumed.pop_ready(11.5) == [29]  # silent for silent_after_s since: not waited for
+
+
+def test_a_frame_is_ready_at_the_time_the_buffer_says_it_is_due() -> None:
+    # A worker sleeps until due() and asks again. At 1500.0 s of the monotonic clock,
+    # (1500.0 + 0.3) - 1500.0 rounds below 0.3: the frame was judged still in its window at
+    # its own deadline (a test at that clock value failed; the worker would have slept again).
+    for arrived in (1500.0, 1234.5678, 3.0, 98765.4321):
+        buf: ReorderBuffer[str] = ReorderBuffer(SENSORS, 0.3, 10.0)
+        buf.push("lidar", 1, 100, "lidar 1", arrived)
+        buf.push("camera", 1, 200, "camera 1", arrived)  # waits for the lidar's next frame
+        assert buf.pop_ready(arrived) == ["lidar 1"]
+        deadline = buf.due()
+        assert deadline is not None
+        assert buf.pop_ready(deadline) == ["camera 1"], arrived

@@ -66,7 +66,9 @@ class ReorderBuffer(Generic[T]):
         return heard is None or now - heard > self.silent_after_s
 
     def _ready(self, w: _Waiting[T], now: float) -> bool:
-        if now - w.arrived >= self.window_s:
+        # The same sum as due()'s: a caller woken at the deadline finds the frame ready
+        # (now - arrived rounds below window_s for some clock values).
+        if now >= w.arrived + self.window_s:
             return True
         stamp = w.key[0]
         return all(
