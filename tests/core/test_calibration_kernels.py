@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from simpletrack.core import calibration_kernels as ck
-from simpletrack.core.calibration import PAIR_GATE_M, SEARCH_M
+from simpletrack.core.calibration import BIN_M, DECAY, PAIR_GATE_M, SEARCH_M
 
 
 def numpy_pairs(det, det_cls, trk, trk_cls):  # type: ignore[no-untyped-def]
@@ -62,3 +62,51 @@ def test_pairs_and_fit_equal_the_vectorised_monitor(compiled: bool) -> None:
         shift = (1.5, -0.5)
         got = fit(det, dc, trk, vel, tc, shift[0], shift[1], PAIR_GATE_M)
         assert np.allclose(got, numpy_fit(det, dc, trk, vel, tc, shift), rtol=1e-12, atol=1e-9)
+
+
+def numpy_votes(off, before):  # type: ignore[no-untyped-def]
+    """The offset votes as ``calibration.observe`` computed them in numpy."""
+    bins = before.shape[0]
+    centre = bins // 2
+
+    def region(v, i, j):  # type: ignore[no-untyped-def]
+        return float(v[max(i - 1, 0) : i + 2, max(j - 1, 0) : j + 2].sum())
+
+    cells = np.floor(off / BIN_M).astype(np.int64) + centre
+    frame = np.zeros((bins, bins))
+    np.add.at(frame, (cells[:, 0], cells[:, 1]), 1.0)
+    votes = before * DECAY + frame
+    pi, pj = np.unravel_index(int(np.argmax(votes)), votes.shape)
+    sel = (np.abs(cells[:, 0] - pi) <= 1) & (np.abs(cells[:, 1] - pj) <= 1)
+    mean = off[sel].mean(axis=0) if sel.any() else np.zeros(2)
+    fi, fj = np.unravel_index(int(np.argmax(frame)), frame.shape)
+    return votes, [
+        pi, pj, region(votes, pi, pj),
+        region(votes, centre, centre) + region(votes, centre - 1, centre - 1),
+        int(sel.sum()), float(mean[0]), float(mean[1]), fi, fj,
+        region(frame, centre, centre) + region(frame, centre - 1, centre - 1),
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_offset_votes_equal_the_numpy_they_replaced(compiled: bool) -> None:
+    votes_of = ck.offset_votes if compiled else ck.offset_votes.py
+    rng = np.random.default_rng(8)
+    bins = int(2 * SEARCH_M / BIN_M)
+    for sequence in range(60):
+        before = np.zeros((bins, bins))
+        shift = rng.uniform(-29, 29, 2) if sequence % 3 else np.zeros(2)
+        for _ in range(12):  # frames of one sensor: the votes carried and decayed
+            k = int(rng.integers(0, 80))
+            off = rng.uniform(-29.999, 29.999, (k, 2))
+            near = rng.random(k) < 0.6  # a pile around the sensor's offset
+            off[near] = np.clip(shift + rng.normal(0, 0.6, (int(near.sum()), 2)), -29.999, 29.999)
+            if sequence % 4 == 0:  # whole-metre offsets: cell edges, and ties between peaks
+                off = np.clip(np.round(off), -29.0, 29.0)  # voting_pairs': under 30 m
+            if sequence % 5 == 0:  # the corner cells: regions cut by the grid's edge
+                off[: k // 2] = rng.choice([-29.5, 29.5], (k // 2, 2))
+            votes, got = votes_of(np.ascontiguousarray(off), before, DECAY, BIN_M)
+            want_votes, want = numpy_votes(off, before)
+            assert np.array_equal(votes, want_votes)
+            assert got.tolist() == [float(w) for w in want], (sequence, got, want)
+            before = votes

@@ -177,3 +177,96 @@ def test_the_report_s_rows_equal_the_numpy_they_replaced(compiled: bool) -> None
         np.testing.assert_array_equal(got[5], in_step, err_msg=f"trial {trial}: in step")
         # Where a track is not in the step, its row of the report is never read.
         np.testing.assert_array_equal(got[4][in_step], want[4][in_step], err_msg=f"trial {trial}")
+
+
+POS_VEL = [0, 1, 2, 7, 8, 9]
+
+
+def numpy_gather(g: dict[str, Any]) -> tuple[Any, ...]:
+    """``VehicleTracker._report``'s gather as it was: whole-table arrays, then its rows."""
+    n, keep, in_step, where = g["n"], g["keep"], g["in_step"], g["where"]
+    rows = np.flatnonzero(keep)
+    box = np.empty((n, 7))
+    cov = np.empty((n, 6, 6))
+    box[in_step] = g["out_params"][where[in_step]]
+    cov[in_step] = g["out_cov"][where[in_step]]
+    away = np.flatnonzero(~in_step & keep)
+    if away.size:
+        cov[away] = g["p_away"][:, POS_VEL][:, :, POS_VEL]
+        pred = g["x_away"][:, :7].copy()  # motion.predicted_boxes
+        yaw = np.where(pred[:, 3] >= np.pi, pred[:, 3] - 2 * np.pi, pred[:, 3])
+        pred[:, 3] = np.where(yaw < -np.pi, yaw + 2 * np.pi, yaw)
+        box[away] = pred
+    score = np.where(g["fresh"] | g["coast"], g["match_score"], g["score"])
+    t = g["t"]
+    return (
+        box[rows], cov[rows], score[rows], g["x"][rows, 7:10], t - g["t_birth"][rows],
+        t - g["t_update"][rows],
+    )  # fmt: skip
+
+
+def gather_case(rng: np.random.Generator, trial: int) -> dict[str, Any]:
+    n, m = int(rng.integers(0, 40)), int(rng.integers(0, 40))
+    in_step = rng.random(n) < (0.7 if m else 0.0)
+    keep = rng.random(n) < [0.8, 1.0, 0.3][trial % 3]
+    away = int((~in_step & keep).sum())
+    x_away = rng.normal(0, 5, (away, 10))
+    # Yaws on both sides of each wrap, and exactly at them.
+    x_away[:, 3] = rng.choice(
+        [np.pi, -np.pi, 3.5, -3.5, 7.0, -7.0, 0.5, np.nextafter(np.pi, 0)], away
+    )
+    return {
+        "n": n, "keep": keep, "in_step": in_step, "where": rng.integers(0, max(m, 1), n),
+        "out_params": rng.normal(0, 5, (m, 7)), "out_cov": rng.normal(0, 1, (m, 6, 6)),
+        "x_away": x_away, "p_away": rng.normal(0, 1, (away, 10, 10)),
+        "fresh": rng.random(n) < 0.5, "coast": rng.random(n) < 0.2,
+        "match_score": rng.random(n), "score": rng.random(n), "x": rng.normal(0, 5, (n, 10)),
+        "t": float(rng.uniform(1e9, 2e9)), "t_birth": rng.uniform(1e9, 2e9, n),
+        "t_update": rng.uniform(1e9, 2e9, n),
+    }  # fmt: skip
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_report_s_gather_equals_the_numpy_it_replaced(compiled: bool) -> None:
+    fn = fk.report_gather if compiled else fk.report_gather.py
+    rng = np.random.default_rng(13)
+    names = ("box", "covariance", "score", "velocity", "age_s", "time_since_update_s")
+    for trial in range(300):
+        g = gather_case(rng, trial)
+        rows = np.flatnonzero(g["keep"])
+        for kalman in (True, False):
+            got = fn(
+                rows, g["in_step"], g["where"], g["out_params"], g["out_cov"], True,
+                g["x_away"], g["p_away"], kalman, g["fresh"], g["coast"], g["match_score"],
+                g["score"], g["x"], g["t"], g["t_birth"], g["t_update"],
+            )  # fmt: skip
+            for name, a, b in zip(names, got, numpy_gather(g), strict=True):
+                if name == "covariance" and not kalman:
+                    assert a.shape == (0, 6, 6)  # motion=cv keeps none
+                    continue
+                assert a.dtype == b.dtype and a.flags.c_contiguous, name
+                np.testing.assert_array_equal(a, b, err_msg=f"trial {trial}: {name}")
+
+
+def numpy_counter_in(misses: Any, s: int) -> Any:
+    """``vehicle._counter_in`` as it was."""
+    if misses.shape[0] == 0:
+        return np.zeros(0, dtype=np.int32)
+    own = np.maximum(misses[:, s], 0)
+    others = np.delete(misses, s, axis=1)
+    defined = np.where(others >= 0, others, np.iinfo(np.int32).max)
+    least_other = defined.min(axis=1, initial=np.iinfo(np.int32).max)
+    return np.asarray(np.minimum(own, least_other - 1), dtype=np.int32)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_step_s_starting_counters_equal_the_numpy_they_replaced(compiled: bool) -> None:
+    fn = fk.counter_in if compiled else fk.counter_in.py
+    rng = np.random.default_rng(14)
+    for trial in range(300):
+        n, n_s = int(rng.integers(0, 30)), int(rng.integers(1, 5))
+        misses = rng.integers(-1, 6, (n, n_s)).astype(np.int32)  # -1: not in view since
+        s = int(rng.integers(0, n_s))
+        got = fn(misses, s)
+        assert got.dtype == np.int32
+        np.testing.assert_array_equal(got, numpy_counter_in(misses, s), err_msg=f"trial {trial}")

@@ -66,11 +66,6 @@ class Estimate:
     delta_se: float = math.inf
 
 
-def _region(votes: F64, i: int, j: int) -> float:
-    """Votes in the 3 x 3 cells around (i, j): an offset near a cell border counts whole."""
-    return float(votes[max(i - 1, 0) : i + 2, max(j - 1, 0) : j + 2].sum())
-
-
 def observe(
     state: MonitorState,
     det_xy: F64,
@@ -84,27 +79,13 @@ def observe(
     det_cls = np.asarray(det_cls, dtype=np.int32)
     trk_cls = np.asarray(trk_cls, dtype=np.int32)
     off = kernels.voting_pairs(det_xy, det_cls, trk_xy, trk_cls, SEARCH_M)
-    cells = np.floor(off / BIN_M).astype(np.int64) + _CENTRE
-    frame_votes = np.zeros((_BINS, _BINS))
-    np.add.at(frame_votes, (cells[:, 0], cells[:, 1]), 1.0)
-    votes = state.votes * DECAY + frame_votes
-
-    pi, pj = np.unravel_index(int(np.argmax(votes)), votes.shape)
-    peak = _region(votes, int(pi), int(pj))
-    zero = _region(votes, _CENTRE, _CENTRE) + _region(votes, _CENTRE - 1, _CENTRE - 1)
+    votes, v = kernels.offset_votes(off, state.votes, DECAY, BIN_M)
+    pi, pj, peak, zero, pairs, mx, my, fi, fj, frame_zero = v.tolist()
     offset: tuple[float, float] | None = None
-    if peak >= MIN_VOTES:
-        sel = (np.abs(cells[:, 0] - pi) <= 1) & (np.abs(cells[:, 1] - pj) <= 1)
-        if sel.any():  # refined by this frame's pairs in the peak region
-            mean = off[sel].mean(axis=0)
-            offset = (float(mean[0]), float(mean[1]))
-        else:
-            offset = ((pi - _CENTRE + 0.5) * BIN_M, (pj - _CENTRE + 0.5) * BIN_M)
-    fi, fj = np.unravel_index(int(np.argmax(frame_votes)), frame_votes.shape)
-    frame_zero = _region(frame_votes, _CENTRE, _CENTRE) + _region(
-        frame_votes, _CENTRE - 1, _CENTRE - 1
-    )
-    near_zero = abs(int(fi) - _CENTRE) <= 2 and abs(int(fj) - _CENTRE) <= 2
+    if peak >= MIN_VOTES:  # refined by this frame's pairs in the peak region, if any
+        cell = ((pi - _CENTRE + 0.5) * BIN_M, (pj - _CENTRE + 0.5) * BIN_M)
+        offset = (mx, my) if pairs else cell
+    near_zero = abs(fi - _CENTRE) <= 2 and abs(fj - _CENTRE) <= 2
     agree = bool(near_zero and frame_zero >= MIN_VOTES / 2)
 
     sx, sy = (0.0, 0.0) if offset is None else offset

@@ -4,7 +4,9 @@ A camera frame meets every trusted track: the vectorised version built (N, M, 2)
 tables and a dozen temporaries per frame (0.3 ms of a fused camera frame's 1 ms on
 nuScenes-sized frames). These walk the same pairs once, in the same order, with the same
 rules: a pair votes when its classes match and both offsets are under ``search`` metres; the
-time fit takes mutual nearest same-class pairs (first index on ties, as ``argmin``).
+time fit takes mutual nearest same-class pairs (first index on ties, as ``argmin``). The
+votes' grid (``offset_votes``: ~15 numpy calls on a 60 x 60 grid, ~40 µs a camera frame) is
+one pass too, its sums in numpy's order, so its figures are the numpy code's bit for bit.
 """
 
 from __future__ import annotations
@@ -14,12 +16,12 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from simpletrack.core.jit import kernel
+from simpletrack.core.jit import helper, kernel
 
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
-__all__ = ["time_fit", "voting_pairs"]
+__all__ = ["offset_votes", "time_fit", "voting_pairs"]
 
 _XY = "float64[:, :]"
 _CLS = "int32[:]"
@@ -104,3 +106,73 @@ def time_fit(
     out[12] = yy
     out[13] = rows
     return out
+
+
+@helper
+def _region(votes: F64, i: int, j: int) -> float:
+    """The votes in the 3 x 3 cells around (i, j), summed as numpy sums that slice: the cells
+    in row order into one buffer, then its pairwise sum (below eight values one after
+    another; nine: eight partial sums paired, then the ninth), added to 0."""
+    bins = votes.shape[0]
+    buf = np.empty(9)
+    n = 0
+    for a in range(max(i - 1, 0), min(i + 2, bins)):
+        for b in range(max(j - 1, 0), min(j + 2, votes.shape[1])):
+            buf[n] = votes[a, b]
+            n += 1
+    if n < 8:
+        res = -0.0
+        for k in range(n):
+            res += buf[k]
+    else:
+        res = ((buf[0] + buf[1]) + (buf[2] + buf[3])) + ((buf[4] + buf[5]) + (buf[6] + buf[7]))
+        for k in range(8, n):
+            res += buf[k]
+    return 0.0 + res
+
+
+@kernel("Tuple((float64[:, ::1], float64[::1]))(float64[:, ::1], float64[:, :], float64, float64)")
+def offset_votes(
+    off: F64, before: F64, decay: float, bin_m: float
+) -> tuple[F64, F64]:  # fmt: skip
+    """The votes after one frame's pair offsets ``off`` (``before`` decayed, plus one per
+    pair in its cell) and what ``calibration.observe`` reads of them, as its numpy did: (peak
+    cell i, j, the votes around it, around (0, 0), pairs in the peak's region, their mean dx,
+    dy, this frame's own peak cell i, j and its votes around (0, 0))."""
+    bins = before.shape[0]
+    centre = bins // 2
+    k = off.shape[0]
+    cells = np.empty((k, 2), dtype=np.int64)
+    frame = np.zeros((bins, bins))
+    for p in range(k):
+        cx = np.int64(math.floor(off[p, 0] / bin_m)) + centre
+        cy = np.int64(math.floor(off[p, 1] / bin_m)) + centre
+        cells[p, 0] = cx
+        cells[p, 1] = cy
+        frame[cx, cy] += 1.0
+    votes = np.empty((bins, bins))
+    pi, pj, fi, fj = 0, 0, 0, 0
+    for a in range(bins):
+        for b in range(bins):
+            v = before[a, b] * decay + frame[a, b]
+            votes[a, b] = v
+            if v > votes[pi, pj]:  # the first of equal maxima, as argmax
+                pi, pj = a, b
+            if frame[a, b] > frame[fi, fj]:
+                fi, fj = a, b
+    sx, sy, sel = 0.0, 0.0, 0
+    for p in range(k):
+        if abs(cells[p, 0] - pi) <= 1 and abs(cells[p, 1] - pj) <= 1:
+            sx += off[p, 0]
+            sy += off[p, 1]
+            sel += 1
+    out = np.empty(10)
+    out[0], out[1] = pi, pj
+    out[2] = _region(votes, pi, pj)
+    out[3] = _region(votes, centre, centre) + _region(votes, centre - 1, centre - 1)
+    out[4] = sel
+    out[5] = sx / sel if sel else 0.0
+    out[6] = sy / sel if sel else 0.0
+    out[7], out[8] = fi, fj
+    out[9] = _region(frame, centre, centre) + _region(frame, centre - 1, centre - 1)
+    return votes, out

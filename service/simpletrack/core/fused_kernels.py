@@ -1,7 +1,8 @@
-"""A fused vehicle's per-frame bookkeeping, compiled (core/vehicle.py ``_columns``, ``_report``).
+"""A fused vehicle's per-frame bookkeeping, compiled (core/vehicle.py: the step's starting
+counters, ``_columns``, and ``_report``'s rows and gather).
 
-Both were numpy over the vehicle's ~100-200 tracks: some forty calls each, every one costing
-more than its arithmetic, a third of a fused frame's time in the service (docs/BENCHMARKS.md,
+Each was numpy over the vehicle's ~100-200 tracks: some forty calls, every one costing more
+than its arithmetic, a third of a fused frame's time in the service (docs/BENCHMARKS.md,
 "Fused vehicles"). Here each is one loop over the tracks with the same operations in the same
 order (additions, comparisons, copies), so the results are the numpy code's bit for bit; the
 logarithms and exponentials stay in numpy, outside (``evidence`` comes in computed).
@@ -13,6 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 from simpletrack.core.advance_kernels import policy_shows
+from simpletrack.core.boxes import YAW
+from simpletrack.core.frames import POS_VEL
 from simpletrack.core.jit import kernel
 
 F64 = npt.NDArray[np.float64]
@@ -21,10 +24,12 @@ I32 = npt.NDArray[np.int32]
 I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 
-__all__ = ["fused_columns", "report_rows"]
+__all__ = ["counter_in", "fused_columns", "report_gather", "report_rows"]
 
 _COASTED, _MATCHED = 0, 1  # lifecycle.UpdateKind
 _TENTATIVE, _CONFIRMED = 0, 1  # lifecycle.TrackState
+_BOX = 7  # a box's parameters: a state's first seven values (motion.DIM_Z)
+_TWO_PI = 2 * np.pi  # motion._wrap_once's constant, folded the same way
 
 _COLUMNS = (
     "Tuple((int32[:, ::1], int64[:, ::1], int8[::1], float64[::1], int32[::1]))"
@@ -167,3 +172,96 @@ def report_rows(
             r = False
         fresh[i], coast[i], keep[i] = f, c, r
     return kind, fresh, coast, keep, where, in_step
+
+
+_GATHER = (
+    "Tuple((float64[:, ::1], float64[:, :, ::1], float64[::1], float64[:, ::1], float64[::1],"
+    " float64[::1]))"
+    "(int64[:], boolean[:], int64[:], float64[:, :], float64[:, :, :], boolean, float64[:, :],"
+    " float64[:, :, :], boolean, boolean[:], boolean[:], float64[:], float64[:], float64[:, :],"
+    " float64, float64[:], float64[:])"
+)
+
+
+@kernel(_GATHER)
+def report_gather(
+    rows: I64,
+    in_step: B,
+    where: I64,
+    out_params: F64,
+    out_cov: F64,
+    step_cov: bool,
+    x_away: F64,
+    p_away: F64,
+    kalman: bool,
+    fresh: B,
+    coast: B,
+    match_score: F64,
+    score: F64,
+    x: F64,
+    t: float,
+    t_birth: F64,
+    t_update: F64,
+) -> tuple[F64, F64, F64, F64, F64, F64]:
+    """(box, covariance, score, velocity, age_s, time_since_update_s) of the reported
+    ``rows``: a track in the step (``in_step``) from the step's report (its row ``where``),
+    the others (in ``rows`` order) from their predicted states ``x_away`` / ``p_away``: the
+    box the state's first seven values with the yaw wrapped once (``motion.predicted_boxes``),
+    the covariance its ``POS_VEL`` block. ``step_cov``: the report has a covariance (else a
+    step row's is left unset, as the numpy gather left it); ``kalman``: any covariance at all
+    (else the second array is empty)."""
+    k = rows.shape[0]
+    box = np.empty((k, _BOX))
+    cov = np.empty((k if kalman else 0, 6, 6))
+    out_score = np.empty(k)
+    velocity = np.empty((k, 3))
+    age_s = np.empty(k)
+    tsu_s = np.empty(k)
+    a = 0
+    for j in range(k):
+        r = rows[j]
+        if in_step[r]:
+            w = where[r]
+            box[j, :] = out_params[w, :_BOX]
+            if kalman and step_cov:
+                cov[j] = out_cov[w]
+        else:
+            for c in range(_BOX):
+                box[j, c] = x_away[a, c]
+            yaw = box[j, YAW]
+            if yaw >= np.pi:
+                yaw = yaw - _TWO_PI
+            if yaw < -np.pi:
+                yaw = yaw + _TWO_PI
+            box[j, YAW] = yaw
+            if kalman:
+                for u in range(6):
+                    for v in range(6):
+                        cov[j, u, v] = p_away[a, POS_VEL[u], POS_VEL[v]]
+            a += 1
+        out_score[j] = match_score[r] if fresh[r] or coast[r] else score[r]
+        for c in range(3):
+            velocity[j, c] = x[r, 7 + c]
+        age_s[j] = t - t_birth[r]
+        tsu_s[j] = t - t_update[r]
+    return box, cov, out_score, velocity, age_s, tsu_s
+
+
+_INT32_MAX = np.iinfo(np.int32).max
+
+
+@kernel("int32[::1](int32[:, :], int64)")
+def counter_in(misses: I32, s: int) -> I32:
+    """The ``time_since_update`` a step of sensor ``s`` starts each track from, such that its
+    own ``+ 1`` for a track ``s`` misses gives the track's counter after the miss: the least
+    of ``s``'s misses (then one more) and every other in-view sensor's (-1: not in its view
+    since)."""
+    n, n_s = misses.shape
+    out = np.empty(n, dtype=np.int32)
+    for i in range(n):
+        least = _INT32_MAX
+        for j in range(n_s):
+            if j != s and 0 <= misses[i, j] < least:
+                least = misses[i, j]
+        out[i] = min(max(misses[i, s], 0), least - 1)
+    return out

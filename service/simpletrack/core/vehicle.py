@@ -47,12 +47,12 @@ import numpy.typing as npt
 from simpletrack.core import calibration
 from simpletrack.core.boxes import Boxes, transform_boxes
 from simpletrack.core.config import ClassConfig, MotionModel, OutputPolicy, TrackerConfig
-from simpletrack.core.frames import POS_VEL, Frame, Tracks
-from simpletrack.core.fused_kernels import fused_columns, report_rows
+from simpletrack.core.frames import Frame, Tracks
+from simpletrack.core.fused_kernels import counter_in, fused_columns, report_gather, report_rows
 from simpletrack.core.fusion_config import EXISTENCE_FLOOR, FusionConfig, SensorTrust
 from simpletrack.core.kalman_kernels import predict_all
 from simpletrack.core.lifecycle import TrackState, UpdateKind
-from simpletrack.core.motion import KalmanFilter, predicted_boxes
+from simpletrack.core.motion import KalmanFilter
 from simpletrack.core.occlusion import occlusion
 from simpletrack.core.state import TrackTable, pack, pack_array, unpack, unpack_array
 from simpletrack.core.tracker import POLICY_CODES, Tracker
@@ -66,6 +66,7 @@ Bool = npt.NDArray[np.bool_]
 
 STATE_FORMAT = 1
 _LOGIT_MAX = math.log((1 - EXISTENCE_FLOOR) / EXISTENCE_FLOOR)
+_NO_STATES, _NO_COVARIANCES = np.zeros((0, 10)), np.zeros((0, 6, 6))  # report_gather's unused
 # Tracks updated by a trusted sensor this recently are what a sensor is checked against.
 REFERENCE_AGE_NS = 300_000_000
 LATE_FLAG_AFTER = 3  # consecutive frames too old for the history: the sensor's clock is behind
@@ -179,7 +180,11 @@ class SensorRecord:
     transform: F64 | None = None  # its last frame's sensor -> tracking transform (its view)
 
     def copy(self) -> SensorRecord:
-        return replace(self)
+        """A shallow copy, what ``replace(self)`` made, without its look at every field (~10
+        µs a record; each frame's undo record copies every sensor's)."""
+        twin = object.__new__(SensorRecord)
+        twin.__dict__.update(self.__dict__)
+        return twin
 
 
 @dataclass(frozen=True, slots=True)
@@ -483,7 +488,7 @@ class VehicleTracker:
         view = self._in_view(inp, t)
         iv, ov = np.flatnonzero(view), np.flatnonzero(~view)
         sub, sub_cols = (table, cols) if ov.size == 0 else (table.take(iv), cols.take(iv))
-        counter = _counter_in(sub_cols.misses, s)
+        counter = counter_in(sub_cols.misses, s)
         hidden = self._hidden(sub, sub_cols, inp, t)
         if hidden.any():  # its own "+ 1" leaves a hidden track's counter where it was
             counter = np.where(hidden, sub.time_since_update - 1, counter).astype(np.int32)
@@ -565,7 +570,6 @@ class VehicleTracker:
         it: matched by this frame, or updated by another sensor since this one last
         updated it and missed by none. With one sensor: matched on this frame."""
         table, cols = self.tracker.tracks, self.cols
-        n = len(table)
         tsu = table.time_since_update
         min_e = self.fusion.min_existence
         kind, fresh, coast, keep, where, in_step = report_rows(
@@ -575,36 +579,33 @@ class VehicleTracker:
         )  # fmt: skip
         rows = np.flatnonzero(keep)
         kalman = self.config.motion is MotionModel.KALMAN
-        box = np.empty((n, 7))
-        cov = np.empty((n, 6, 6)) if kalman else None
-        if len(out):
-            box[in_step] = out.boxes.params[where[in_step]]
-            if cov is not None and out.covariance is not None:
-                cov[in_step] = out.covariance[where[in_step]]
         away = np.flatnonzero(~in_step & keep)
+        x_away, p_away = _NO_STATES, _NO_COVARIANCES
         if away.size:
             dt = t - table.t_update[away]
             if kalman:
-                x_pred, p_pred = predict_all(table.x[away], table.p[away], dt, self._kf.q)
-                assert cov is not None
-                cov[away] = p_pred[:, POS_VEL][:, :, POS_VEL]
+                x_away, p_away = predict_all(table.x[away], table.p[away], dt, self._kf.q)
             else:
-                x_pred = table.x[away].copy()
-                x_pred[:, :3] += table.x[away, 7:10] * dt[:, None]
-            box[away] = predicted_boxes(x_pred)
-        score = np.where(fresh | coast, table.match_score, table.score)
+                x_away = table.x[away].copy()
+                x_away[:, :3] += table.x[away, 7:10] * dt[:, None]
+        out_cov = _NO_COVARIANCES if out.covariance is None else out.covariance
+        box, cov, score, velocity, age_s, tsu_s = report_gather(
+            rows, in_step, where, out.boxes.params, out_cov, out.covariance is not None, x_away,
+            p_away, kalman, fresh, coast, table.match_score, table.score, table.x, t,
+            table.t_birth, table.t_update,
+        )  # fmt: skip
         tracks = Tracks(
             ids=table.ids[rows],
-            boxes=Boxes(params=box[rows], score=score[rows], cls=table.cls[rows]),
-            velocity=table.x[rows, 7:10],
+            boxes=Boxes(params=box, score=score, cls=table.cls[rows]),
+            velocity=velocity,
             state=table.state[rows],
             update=kind[rows],
             hits=table.hits[rows],
             age=table.age[rows],
             time_since_update=tsu[rows],
-            covariance=None if cov is None else cov[rows],
-            age_s=t - table.t_birth[rows],
-            time_since_update_s=t - table.t_update[rows],
+            covariance=cov if kalman else None,
+            age_s=age_s,
+            time_since_update_s=tsu_s,
         )
         existence = 1.0 / (1.0 + np.exp(-cols.log_odds[rows]))
         return tracks, existence, cols.stamp_ns[rows]
@@ -804,19 +805,6 @@ def _full(trust: SensorTrust) -> bool:
 def _logit(p: float) -> float:
     p = min(max(p, EXISTENCE_FLOOR), 1 - EXISTENCE_FLOOR)
     return math.log(p / (1 - p))
-
-
-def _counter_in(misses: I32, s: int) -> I32:
-    """The time_since_update the step starts from for sensor ``s``, such that its own
-    ``+ 1`` for a track ``s`` misses gives the track's counter after the miss: the least
-    of ``s``'s misses (then one more) and every other in-view sensor's."""
-    if misses.shape[0] == 0:
-        return np.zeros(0, dtype=np.int32)
-    own = np.maximum(misses[:, s], 0)
-    others = np.delete(misses, s, axis=1)
-    defined = np.where(others >= 0, others, np.iinfo(np.int32).max)
-    least_other = defined.min(axis=1, initial=np.iinfo(np.int32).max)
-    return np.asarray(np.minimum(own, least_other - 1), dtype=np.int32)
 
 
 def _without(table: TrackTable, out: Tracks, keep: Bool) -> tuple[TrackTable, Tracks]:
