@@ -842,14 +842,16 @@ def _birth_ids(
     from the same detection as before (same class, bit-identical box) keeps its old id."""
     new = ids.copy()
     rows = np.flatnonzero(born)
+    if reuse is None or reuse.ids.size == 0:  # the usual frame: consecutive, nothing to match
+        new[rows] = np.arange(first, first + rows.size, dtype=np.int64)
+        return new, _Births(new[rows], cls[rows].copy(), params[rows].copy())
     nxt = first
     for r in rows.tolist():
         got = None
-        if reuse is not None and reuse.ids.size:
-            same = (reuse.cls == cls[r]) & (reuse.params == params[r]).all(axis=1)
-            hit = np.flatnonzero(same)
-            if hit.size:
-                got = int(reuse.ids[hit[0]])
+        same = (reuse.cls == cls[r]) & (reuse.params == params[r]).all(axis=1)
+        hit = np.flatnonzero(same)
+        if hit.size:
+            got = int(reuse.ids[hit[0]])
         if got is None:
             got = nxt
             nxt += 1
