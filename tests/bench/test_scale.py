@@ -160,3 +160,24 @@ def test_a_tiny_scale_run_reports_capacity_and_both_faults(
         if timed:
             assert 0 <= f["median_ms"] <= f["max_ms"]
     assert (tmp_path / "scale_capacity.png").read_bytes()[:8] == PNG
+
+
+@pytest.mark.parametrize("fused", [False, True])
+def test_fused_reaches_the_members_and_the_load(
+    fused: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`--fused` gives the load's vehicles and the members' fusion settings (launch_tracker
+    and load_spec read ``bench.fused``): the run is stopped at its start."""
+    from simpletrack.bench import scale
+    from simpletrack.bench.generators import BenchError
+
+    seen: list[scale.ScaleOptions] = []
+
+    def start(opts: scale.ScaleOptions, progress: object = None) -> None:
+        seen.append(opts)
+        raise BenchError("stopped here")
+
+    monkeypatch.setattr(scale, "run_scale", start)
+    args = ["bench", "scale", "--instances", "2", "--sensors", "3", "--source", "synthetic"]
+    assert main([*args, *(["--fused"] if fused else [])]) != 0  # the error, in one line
+    assert [o.bench.fused for o in seen] == [fused]

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from simpletrack.bench.generators import Generators, generator_summary, merge_results
+from simpletrack.bench.loadgen import FUSED_SENSORS
 from simpletrack.bench.report import generator_line
 from simpletrack.bench.service import (
     Server,
@@ -287,7 +288,8 @@ def fault_run(
 ) -> dict[str, Any]:
     """A fresh group streaming ``fault_sensors`` sensors; the last member is hit half-way."""
     bench = opts.bench
-    progress(f"{fault:8s} {members} members, {opts.fault_sensors} sensors, {bench.seconds:g} s ...")
+    unit = "vehicles" if bench.fused else "sensors"
+    progress(f"{fault:8s} {members} members, {opts.fault_sensors} {unit}, {bench.seconds:g} s ...")
     with group(members, bench, tmp) as servers:
         base = load_spec(opts.fault_sensors, bench, servers)
         spec = replace(base, drain_s=FAULT_DRAIN_S, record_answers=True)
@@ -312,7 +314,9 @@ def fault_run(
         "fault": fault,
         "signal": FAULTS[fault].name,
         "members": members,
-        "sensors": opts.fault_sensors,
+        # Sensor streams (a fused vehicle's two each): the figures are per sensor.
+        "sensors": opts.fault_sensors * (len(FUSED_SENSORS) if bench.fused else 1),
+        "vehicles": opts.fault_sensors if bench.fused else None,
         **fault_figures(
             result["answers"],
             result["sent_ns"],

@@ -394,6 +394,13 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--workers", type=int, default=2, help="worker threads per member (default 2)"
     )
     scale.add_argument(
+        "--fused",
+        action="store_true",
+        help="fused vehicles instead of sensors, as bench service --fused: --sensors and "
+        "--fault-sensors count vehicles (a lidar and a front camera each), the members fuse "
+        "them; a fault's figures are per sensor, each answered by its vehicle's messages",
+    )
+    scale.add_argument(
         "--fault-sensors",
         type=int,
         default=10,
@@ -943,6 +950,7 @@ def run_scale(args: argparse.Namespace) -> int:
         generator_processes=processes,
         generator_cpus=cpus,
         heartbeat_s=heartbeat,
+        fused=args.fused,
     )
     opts = ScaleOptions(instances, bench_opts, args.fault_sensors)
     before = machine()
