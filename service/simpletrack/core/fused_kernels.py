@@ -17,6 +17,7 @@ from simpletrack.core.advance_kernels import policy_shows
 from simpletrack.core.boxes import YAW
 from simpletrack.core.frames import POS_VEL
 from simpletrack.core.jit import kernel
+from simpletrack.core.kalman_kernels import wrap_once
 
 F64 = npt.NDArray[np.float64]
 I8 = npt.NDArray[np.int8]
@@ -29,7 +30,6 @@ __all__ = ["counter_in", "fused_columns", "report_gather", "report_rows"]
 _COASTED, _MATCHED = 0, 1  # lifecycle.UpdateKind
 _TENTATIVE, _CONFIRMED = 0, 1  # lifecycle.TrackState
 _BOX = 7  # a box's parameters: a state's first seven values (motion.DIM_Z)
-_TWO_PI = 2 * np.pi  # motion._wrap_once's constant, folded the same way
 
 _COLUMNS = (
     "Tuple((int32[:, ::1], int64[:, ::1], int8[::1], float64[::1], int32[::1]))"
@@ -228,12 +228,7 @@ def report_gather(
         else:
             for c in range(_BOX):
                 box[j, c] = x_away[a, c]
-            yaw = box[j, YAW]
-            if yaw >= np.pi:
-                yaw = yaw - _TWO_PI
-            if yaw < -np.pi:
-                yaw = yaw + _TWO_PI
-            box[j, YAW] = yaw
+            box[j, YAW] = wrap_once(box[j, YAW])
             if kalman:
                 for u in range(6):
                     for v in range(6):
