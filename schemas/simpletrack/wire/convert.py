@@ -30,6 +30,7 @@ from simpletrack.core.input_kernels import detection_rows
 from simpletrack.core.lifecycle import TrackState, UpdateKind
 from simpletrack.core.output_kernels import NON_FINITE_ORDER
 from simpletrack.core.packing_kernels import COLUMN_ORDER, pack_columns
+from simpletrack.wire.codec import pack
 from simpletrack.wire.columns import (
     F32,
     F64,
@@ -242,16 +243,11 @@ def pack_vehicle_tracks_checked(
     entries += 2
     head = bytes([0x80 | entries]) if entries <= 15 else b"\xde" + entries.to_bytes(2, "big")
     return b"".join(
-        (head, rest, _EXISTENCE_KEY, _bin(ex.tobytes()), _STAMPS_KEY, _bin(stamps.tobytes()))
+        (head, rest, _EXISTENCE_KEY, pack(ex.tobytes()), _STAMPS_KEY, pack(stamps.tobytes()))
     )
 
 
 _EXISTENCE_KEY, _STAMPS_KEY = msgpack.packb("existence"), msgpack.packb("sensor_stamp_ns")
-
-
-def _bin(data: bytes) -> bytes:
-    packed: bytes = msgpack.packb(data, use_bin_type=True)
-    return packed
 
 
 def vehicle_tracks_to_wire(
