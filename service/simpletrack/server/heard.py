@@ -102,8 +102,9 @@ class HeardStreams:
         waiting, self._waiting = self._waiting, []
         for entry in waiting:
             if isinstance(entry, Told):
-                t = entry
-                self._record(t.stream, t.stamp_ns, t.next_id, t.seq, t.epoch, None)
+                self._record(
+                    entry.stream, entry.stamp_ns, entry.next_id, entry.seq, entry.epoch, None
+                )
                 continue
             stream, payload, vehicle = entry
             try:
