@@ -26,9 +26,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import zenoh
 
+from simpletrack.bench.fused import in_front_view
 from simpletrack.bench.loadgen import IDENTITY, synthetic_box_arrays
 from simpletrack.bench.service import FUSION_CONFIG, cpu_seconds
 from simpletrack.client.publisher import DetectionPublisher
@@ -67,9 +67,8 @@ def owned_by_a(n: int, fused: bool) -> list[tuple[str, str]]:
 
 
 def front_view(boxes: BoxArrays) -> BoxArrays:
-    """The boxes a front camera at the origin sees (90 degrees, 70 m)."""
-    x, y = boxes.center[:, 0], boxes.center[:, 1]
-    keep = (np.hypot(x, y) <= 70.0) & (np.abs(np.arctan2(y, x)) <= np.pi / 4)
+    """The boxes the benchmarks' front camera sees (bench/fused.py ``in_front_view``)."""
+    keep = in_front_view(boxes.center[:, 0], boxes.center[:, 1])
     rows = {f: getattr(boxes, f)[keep] for f in ("class_index", "center", "size", "yaw", "score")}
     return dataclasses.replace(boxes, **rows, velocity=None)
 

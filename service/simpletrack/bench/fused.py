@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from simpletrack.bench.stats import summary_ms
 from simpletrack.core.boxes import Boxes
@@ -30,10 +31,15 @@ TWO = FusionConfig(
 ONE = FusionConfig(sensors={"lidar": SensorTrust()})
 
 
+def in_front_view(x: npt.NDArray[Any], y: npt.NDArray[Any]) -> npt.NDArray[np.bool_]:
+    """Which points the benchmarks' front camera at the origin sees (90 degrees, 70 m: the
+    camera of ``TWO`` and of the service benchmark's fusion settings)."""
+    return np.asarray((np.hypot(x, y) <= 70.0) & (np.abs(np.arctan2(y, x)) <= np.pi / 4))
+
+
 def camera_view(boxes: Boxes, rng: np.random.Generator) -> Boxes:
-    """The boxes a front camera at the origin sees (90 degrees, 70 m), 0.3 m off."""
-    x, y = boxes.params[:, 0], boxes.params[:, 1]
-    keep = (np.hypot(x, y) <= 70.0) & (np.abs(np.arctan2(y, x)) <= np.pi / 4)
+    """The boxes a front camera at the origin sees (``in_front_view``), 0.3 m off."""
+    keep = in_front_view(boxes.params[:, 0], boxes.params[:, 1])
     seen = boxes.take(np.flatnonzero(keep))
     params = seen.params.copy()
     params[:, :2] += rng.normal(0.0, 0.3, (len(seen), 2))
@@ -87,4 +93,4 @@ def bench_fused(config: TrackerConfig, streams: Sequence[Sequence[Frame]]) -> di
     }
 
 
-__all__ = ["bench_fused", "camera_view", "inputs"]
+__all__ = ["bench_fused", "camera_view", "in_front_view", "inputs"]

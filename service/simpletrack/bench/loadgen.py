@@ -150,11 +150,11 @@ def answer_keys(spec: LoadSpec, leaf: str) -> list[str]:
 
 
 def front_view(columns: dict[str, Any]) -> dict[str, Any]:
-    """What a front camera at the origin sees of a frame (90 degrees, 70 m)."""
+    """What a front camera at the origin sees of a frame (bench/fused.py ``in_front_view``)."""
+    from simpletrack.bench.fused import in_front_view  # the vehicle tracker: at set-up only
+
     center = np.frombuffer(columns["center"], np.float32).reshape(-1, 3)
-    keep = (np.hypot(center[:, 0], center[:, 1]) <= 70.0) & (
-        np.abs(np.arctan2(center[:, 1], center[:, 0])) <= np.pi / 4
-    )
+    keep = in_front_view(center[:, 0], center[:, 1])
     out = dict(columns)
     out["count"] = int(keep.sum())
     for name, width in (("class_index", 1), ("center", 3), ("size", 3), ("yaw", 1)):
