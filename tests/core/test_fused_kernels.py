@@ -236,7 +236,7 @@ def test_the_report_s_gather_equals_the_numpy_it_replaced(compiled: bool) -> Non
         rows = np.flatnonzero(g["keep"])
         for kalman in (True, False):
             got = fn(
-                rows, g["in_step"], g["where"], g["out_params"], g["out_cov"], True,
+                rows, g["in_step"], g["where"], g["out_params"], g["out_cov"],
                 g["x_away"], g["p_away"], kalman, g["fresh"], g["coast"], g["match_score"],
                 g["score"], g["x"], g["t"], g["t_birth"], g["t_update"],
             )  # fmt: skip

@@ -177,7 +177,7 @@ def report_rows(
 _GATHER = (
     "Tuple((float64[:, ::1], float64[:, :, ::1], float64[::1], float64[:, ::1], float64[::1],"
     " float64[::1]))"
-    "(int64[:], boolean[:], int64[:], float64[:, :], float64[:, :, :], boolean, float64[:, :],"
+    "(int64[:], boolean[:], int64[:], float64[:, :], float64[:, :, :], float64[:, :],"
     " float64[:, :, :], boolean, boolean[:], boolean[:], float64[:], float64[:], float64[:, :],"
     " float64, float64[:], float64[:])"
 )
@@ -190,7 +190,6 @@ def report_gather(
     where: I64,
     out_params: F64,
     out_cov: F64,
-    step_cov: bool,
     x_away: F64,
     p_away: F64,
     kalman: bool,
@@ -207,7 +206,7 @@ def report_gather(
     ``rows``: a track in the step (``in_step``) from the step's report (its row ``where``),
     the others (in ``rows`` order) from their predicted states ``x_away`` / ``p_away``: the
     box the state's first seven values with the yaw wrapped once (``motion.predicted_boxes``),
-    the covariance its ``POS_VEL`` block. ``step_cov``: the report has a covariance (else a
+    the covariance its ``POS_VEL`` block. ``out_cov`` empty: the report has no covariance (a
     step row's is left unset, as the numpy gather left it); ``kalman``: any covariance at all
     (else the second array is empty)."""
     k = rows.shape[0]
@@ -223,7 +222,7 @@ def report_gather(
         if in_step[r]:
             w = where[r]
             box[j, :] = out_params[w, :_BOX]
-            if kalman and step_cov:
+            if kalman and out_cov.shape[0] > 0:
                 cov[j] = out_cov[w]
         else:
             for c in range(_BOX):

@@ -590,9 +590,8 @@ class VehicleTracker:
                 x_away[:, :3] += table.x[away, 7:10] * dt[:, None]
         out_cov = _NO_COVARIANCES if out.covariance is None else out.covariance
         box, cov, score, velocity, age_s, tsu_s = report_gather(
-            rows, in_step, where, out.boxes.params, out_cov, out.covariance is not None, x_away,
-            p_away, kalman, fresh, coast, table.match_score, table.score, table.x, t,
-            table.t_birth, table.t_update,
+            rows, in_step, where, out.boxes.params, out_cov, x_away, p_away, kalman, fresh,
+            coast, table.match_score, table.score, table.x, t, table.t_birth, table.t_update,
         )  # fmt: skip
         tracks = Tracks(
             ids=table.ids[rows],
